@@ -1,0 +1,271 @@
+"""LIBERO tasks as gymnasium environments.
+
+`make_env` builds the real LIBERO scene (MuJoCo through robosuite) and exposes it with the gymnasium
+API: 7-D OSC_POSE delta actions in [-1, 1]; a flat low-dimensional `state` (robot proprioception, every
+object's pose, articulated joints) whose layout is recorded in `metadata["state_layout"]` so saved models
+can check it; optionally an upright `agentview` image. Resets go to a shipped init state and let the
+scene settle (the shipped states are not at rest), and zero the two pieces of solver state LIBERO
+forgets (MuJoCo's warm start, the gripper's last action) so the same seed and actions replay bit-exactly.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from base_suites._libero import libero_modules
+from base_suites.errors import UserInputError, unknown_choice
+from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
+from base_suites.sim_view import SimView
+from base_suites.suites import TaskSpec, get_task
+
+OBS_MODES = ("lowdim", "rgb", "both")
+ROBOT_LAYOUT = (("robot0_eef_pos", 3), ("robot0_eef_quat", 4), ("robot0_gripper_qpos", 2), ("robot0_joint_pos", 7))
+SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1.0])
+CAMERA = "agentview"
+
+
+class LiberoEnv(gym.Env):
+    """One LIBERO task as a `gymnasium.Env` (see module docstring)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(
+        self,
+        task: TaskSpec,
+        *,
+        init_state: int | None = None,
+        seed: int | None = None,
+        obs: str = "lowdim",
+        max_steps: int | None = None,
+        perturbation: Sequence[Perturbation] = (),
+        settle_steps: int = 10,
+        camera_size: int = 128,
+    ) -> None:
+        if obs not in OBS_MODES:
+            raise unknown_choice("observation mode", obs, OBS_MODES)
+        self.perturbations = list(perturbation)
+        plan = BuildPlan(task, task.language)
+        for p in self.perturbations:
+            plan = p.plan(plan)
+        self.task = plan.task
+        self.instruction = plan.instruction
+        self.obs_mode = obs
+        self.max_steps = int(max_steps or task.default_max_steps)
+        self.settle_steps = int(settle_steps)
+        self._init_states = self.task.load_init_states()
+        self._fixed_init = init_state
+        if init_state is not None and not 0 <= init_state < len(self._init_states):
+            raise UserInputError(f"init_state {init_state} out of range: expected 0..{len(self._init_states) - 1}")
+        self._camera_size = camera_size
+        self._env = self._build(plan.env_kwargs)
+        self.domain = self._env.env
+        for p in self.perturbations:
+            p.after_build(self.domain)
+        if obs != "lowdim":
+            self._use_fast_rendering()
+        self.sim = SimView(self.domain)
+        self._layout = self._state_layout()
+        dim = sum(size for _, size in self._layout)
+        spaces = {}
+        if obs in ("lowdim", "both"):
+            spaces["state"] = gym.spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float64)
+        if obs in ("rgb", "both"):
+            spaces[CAMERA] = gym.spaces.Box(0, 255, shape=(camera_size, camera_size, 3), dtype=np.uint8)
+        self.observation_space = gym.spaces.Dict(spaces)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float64)
+        self.metadata = {
+            **LiberoEnv.metadata,
+            "suite": self.task.suite,
+            "task_index": self.task.index,
+            "task_name": self.task.name,
+            "instruction": self.instruction,
+            "goal": [list(p) for p in self.task.goal],
+            "state_layout": [[name, size] for name, size in self._layout],
+        }
+        self._multi_goal = len(self.task.goal) > 1
+        self._steps = 0
+        self._init_index = -1
+        self._episode_seed = 0
+        self._last_raw: dict[str, np.ndarray] = {}
+        self.reset(seed=seed)
+
+    # ---- construction -----------------------------------------------------------------------
+    def _build(self, extra_kwargs: dict[str, Any]):
+        render = self.obs_mode != "lowdim"
+        control_env = libero_modules()["env_wrapper"].ControlEnv
+        return control_env(
+            bddl_file_name=self.task.bddl_file,
+            use_camera_obs=render,
+            has_offscreen_renderer=render,
+            camera_names=[CAMERA] if render else [],
+            camera_heights=self._camera_size,
+            camera_widths=self._camera_size,
+            hard_reset=False,
+            ignore_done=True,
+            horizon=10**9,
+            **extra_kwargs,
+        )
+
+    def _use_fast_rendering(self) -> None:
+        """No shadows, reflections or multisampling: ~2x faster under software GL at no cost to layout."""
+        model = self.domain.sim.model._model
+        model.vis.quality.offsamples = 0
+        model.light_castshadow[:] = 0
+        model.mat_reflectance[:] = 0
+        self.domain.sim._render_context_offscreen = None  # rebuilt with these settings on reset
+
+    def _state_layout(self) -> list[tuple[str, int]]:
+        layout = list(ROBOT_LAYOUT)
+        for name in self.sim.objects:
+            layout += [(f"{name}/pos", 3), (f"{name}/quat", 4)]
+        for name, joints in self.sim.articulated.items():
+            layout += [(f"{name}/joints", len(joints))]
+        return layout
+
+    # ---- gymnasium API ----------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        index = options.get("init_state", self._fixed_init)
+        if index is None:
+            index = int(self.np_random.integers(len(self._init_states)))
+        if not 0 <= int(index) < len(self._init_states):
+            raise UserInputError(f"init_state {index} out of range: expected 0..{len(self._init_states) - 1}")
+        self._init_index = int(index)
+        self._episode_seed = int(self.np_random.integers(2**31))
+        self._env.reset()
+        self._env.set_init_state(self._init_states[self._init_index])
+        self._clear_solver_state()
+        for p in self.perturbations:
+            p.after_reset(self.domain, self._episode_seed)
+        raw = None
+        for _ in range(self.settle_steps):
+            raw, _, _, _ = self._env.step(SETTLE_ACTION)
+        if raw is None:
+            raw = self.domain._get_observations(force_update=True)
+        self._last_raw = raw
+        self._steps = 0
+        return self._observation(raw), self._info(bool(self._env.check_success()))
+
+    def _clear_solver_state(self) -> None:
+        data = self.domain.sim.data._data
+        data.qacc_warmstart[:] = 0
+        for robot in self.domain.robots:
+            robot.gripper.current_action = np.zeros(robot.gripper.dof)
+        self.domain.sim.forward()
+
+    def step(self, action):
+        action = np.clip(np.asarray(action, dtype=np.float64).reshape(7), -1.0, 1.0)
+        raw, _, done, _ = self._env.step(action)
+        self._last_raw = raw
+        self._steps += 1
+        success = bool(done)
+        terminated = success
+        truncated = (not terminated) and self._steps >= self.max_steps
+        return self._observation(raw), float(success), terminated, truncated, self._info(success)
+
+    def render(self) -> np.ndarray:
+        if self.obs_mode == "lowdim":
+            raise UserInputError("render() needs an env made with obs='rgb' or obs='both'")
+        return self._image(self._last_raw)
+
+    def close(self) -> None:
+        if getattr(self, "_env", None) is not None:
+            self._env.close()
+            self._env = None
+
+    # ---- observations and info --------------------------------------------------------------
+    def state_vector(self) -> np.ndarray:
+        """The flat low-dimensional state for the current simulator state (layout in metadata)."""
+        raw = self._last_raw
+        parts = [np.asarray(raw[name], dtype=np.float64) for name, _ in ROBOT_LAYOUT]
+        for name in self.sim.objects:
+            pos, quat = self.sim.pose(name)
+            parts += [pos, quat]
+        for name in self.sim.articulated:
+            parts.append(self.sim.articulation(name))
+        return np.concatenate(parts)
+
+    def _image(self, raw) -> np.ndarray:
+        return np.ascontiguousarray(raw[f"{CAMERA}_image"][::-1])
+
+    def _observation(self, raw) -> dict[str, np.ndarray]:
+        out = {}
+        if "state" in self.observation_space.spaces:
+            out["state"] = self.state_vector()
+        if CAMERA in self.observation_space.spaces:
+            out[CAMERA] = self._image(raw)
+        return out
+
+    def goal_status(self) -> dict[str, bool]:
+        """Truth value of each goal predicate, keyed like 'on(bowl_1,plate_1)'."""
+        return {f"{p[0]}({','.join(p[1:])})": self.sim.predicate(p) for p in self.task.goal}
+
+    def _info(self, success: bool) -> dict[str, Any]:
+        if self._multi_goal:
+            goals = self.goal_status()
+        else:
+            goals = {f"{p[0]}({','.join(p[1:])})": success for p in self.task.goal}
+        return {
+            "success": success,
+            "goal_predicates": goals,
+            "instruction": self.instruction,
+            "init_state": self._init_index,
+            "step": self._steps,
+            "perturbation": [p.describe() for p in self.perturbations],
+        }
+
+    # ---- simulator state, for replay and annotation -----------------------------------------
+    @property
+    def init_index(self) -> int:
+        return self._init_index
+
+    @property
+    def steps(self) -> int:
+        return self._steps
+
+    def get_sim_state(self) -> np.ndarray:
+        """The flattened MuJoCo state (time, qpos, qvel), as stored in LIBERO's HDF5 `states`."""
+        return np.asarray(self._env.get_sim_state()).copy()
+
+    def set_sim_state(self, state: np.ndarray) -> dict[str, np.ndarray]:
+        """Jump to a stored MuJoCo state (for replaying demonstrations); returns the observation."""
+        self._last_raw = self._env.regenerate_obs_from_state(np.asarray(state))
+        return self._observation(self._last_raw)
+
+
+def make_env(
+    suite: str,
+    task: int | str,
+    *,
+    init_state: int | None = None,
+    seed: int | None = None,
+    obs: str = "lowdim",
+    max_steps: int | None = None,
+    perturbation: str | Perturbation | Sequence[Perturbation] | None = None,
+    settle_steps: int = 10,
+    camera_size: int = 128,
+) -> LiberoEnv:
+    """Build one LIBERO / LIBERO-PRO task as a gymnasium env.
+
+    `perturbation` takes operators or a string such as "init:3,language@shipped" (axis[:seed][@mode]).
+    """
+    if isinstance(perturbation, str) or perturbation is None:
+        perturbations = parse_perturbations(perturbation, default_seed=seed or 0)
+    elif isinstance(perturbation, Perturbation):
+        perturbations = [perturbation]
+    else:
+        perturbations = list(perturbation)
+    return LiberoEnv(
+        get_task(suite, task),
+        init_state=init_state,
+        seed=seed,
+        obs=obs,
+        max_steps=max_steps,
+        perturbation=perturbations,
+        settle_steps=settle_steps,
+        camera_size=camera_size,
+    )

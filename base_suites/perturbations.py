@@ -1,0 +1,267 @@
+"""LIBERO-PRO perturbations as seeded, composable operators.
+
+Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved
+0.2-0.3 m), `language` (paraphrased or target-swapped instruction) and `env` (floor, wall and table
+swap). Each operator acts at the stage where the change belongs: before the env is built (which BDDL
+file, which instruction, which scene textures), right after it is built (colours), or after every reset
+(positions). The package's shipped LIBERO-PRO variants are used where they exist (`mode="shipped"`); by
+default new variants are generated from the seed, so the number of distinct perturbed tasks is unbounded.
+What each operator did is returned by `describe()` and recorded in `info` and episode metadata.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from base_suites.errors import UserInputError, unknown_choice
+from base_suites.suites import PRO_SUITES, TaskSpec, base_suite_of, get_task
+
+FLOOR_STYLES = ("dark", "rustic", "light-gray", "white-marble", "wood-plank", "brown-ceramic", "gray-ceramic", "tile_grigia_caldera")
+WALL_STYLES = ("light-blue", "dark-blue", "dark-gray-plaster", "gray-plaster", "dark-green", "light-gray-plaster", "ceramic", "white", "yellow-linen")
+
+
+@dataclass
+class BuildPlan:
+    """What the env factory needs before it builds the simulator."""
+
+    task: TaskSpec
+    instruction: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+
+class Perturbation:
+    """Base operator: seeded; each hook is a no-op unless the axis needs it."""
+
+    axis: ClassVar[str] = ""
+    modes: ClassVar[tuple[str, ...]] = ("generated",)
+
+    def __init__(self, seed: int = 0, mode: str | None = None) -> None:
+        self.seed = int(seed)
+        self.mode = mode or self.modes[0]
+        if self.mode not in self.modes:
+            raise unknown_choice(f"mode of perturbation {self.axis!r}", self.mode, self.modes)
+        self._record: dict[str, Any] = {"axis": self.axis, "seed": self.seed, "mode": self.mode}
+
+    def rng(self, salt: int = 0) -> np.random.Generator:
+        return np.random.default_rng([self.seed, salt, sum(map(ord, self.axis))])
+
+    def plan(self, plan: BuildPlan) -> BuildPlan:
+        return plan
+
+    def after_build(self, domain) -> None:
+        pass
+
+    def after_reset(self, domain, episode_seed: int) -> None:
+        pass
+
+    def describe(self) -> dict[str, Any]:
+        return dict(self._record)
+
+
+def _shipped_variant(task: TaskSpec, axis: str) -> TaskSpec:
+    suite = f"{base_suite_of(task.suite)}_{axis}"
+    if suite not in PRO_SUITES:
+        raise UserInputError(f"suite {task.suite!r} has no shipped LIBERO-PRO '{axis}' variant")
+    return get_task(suite, task.index)
+
+
+def _entity_materials(domain, entity: str) -> list[int]:
+    """Material ids used by the visual geoms of one object or fixture."""
+    model = domain.sim.model._model
+    root = int(domain.obj_body_id[entity])
+    mats = set()
+    for g in range(model.ngeom):
+        b = model.geom_bodyid[g]
+        while b > 0 and b != root:
+            b = model.body_parentid[b]
+        if b == root and model.geom_matid[g] >= 0:
+            mats.add(int(model.geom_matid[g]))
+    return sorted(mats)
+
+
+def _task_entities(domain) -> list[str]:
+    """Objects and fixtures the task names (regions resolve to the entity that owns them)."""
+    names = []
+    for name in domain.obj_of_interest:
+        if name in domain.obj_body_id:
+            names.append(name)
+        elif name in domain.object_sites_dict:
+            parent = domain.object_sites_dict[name].parent_name
+            if parent in domain.obj_body_id:
+                names.append(parent)
+    return list(dict.fromkeys(names))
+
+
+class ObjectPerturbation(Perturbation):
+    """Task objects change appearance: new colours (generated) or LIBERO-PRO's object swaps (shipped)."""
+
+    axis = "object"
+    modes = ("generated", "shipped")
+
+    def plan(self, plan: BuildPlan) -> BuildPlan:
+        if self.mode == "shipped":
+            variant = _shipped_variant(plan.task, "object")
+            self._record["suite"] = variant.suite
+            return BuildPlan(variant, plan.instruction, plan.env_kwargs)
+        return plan
+
+    def after_build(self, domain) -> None:
+        if self.mode != "generated":
+            return
+        rng = self.rng()
+        model = domain.sim.model._model
+        colours = {}
+        for entity in _task_entities(domain):
+            rgb = rng.uniform(0.15, 1.0, size=3)
+            for mat in _entity_materials(domain, entity):
+                model.mat_rgba[mat, :3] = rgb
+            colours[entity] = [round(float(c), 3) for c in rgb]
+        self._record["colours"] = colours
+
+
+class InitPerturbation(Perturbation):
+    """Task objects start 0.2-0.3 m away from their shipped positions, on reachable free table space."""
+
+    axis = "init"
+    modes = ("generated", "shipped")
+    min_shift, max_shift = 0.2, 0.3
+    clearance = 0.08  # minimum xy distance between object centres
+    reach = (0.3, 0.85)  # xy distance from the robot base that the arm reaches comfortably
+    max_tries = 200
+
+    def plan(self, plan: BuildPlan) -> BuildPlan:
+        if self.mode == "shipped":
+            variant = _shipped_variant(plan.task, "swap")
+            self._record["suite"] = variant.suite
+            return BuildPlan(variant, plan.instruction, plan.env_kwargs)
+        return plan
+
+    def after_reset(self, domain, episode_seed: int) -> None:
+        if self.mode != "generated":
+            return
+        import mujoco
+
+        rng = self.rng(episode_seed)
+        model, data = domain.sim.model._model, domain.sim.data._data
+        base = data.xpos[model.body("robot0_base").id][:2]
+        movable = {n: domain.objects_dict[n].joints[0] for n in domain.objects_dict if domain.objects_dict[n].joints}
+        xy = {n: data.xpos[domain.obj_body_id[n]][:2].copy() for n in list(movable) + list(domain.fixtures_dict)}
+        low = np.min(list(xy.values()), axis=0) - 0.1
+        high = np.max(list(xy.values()), axis=0) + 0.1
+        shifts = {}
+        for name in (n for n in _task_entities(domain) if n in movable):
+            target = self._draw_position(rng, xy[name], {k: v for k, v in xy.items() if k != name}, base, low, high)
+            adr = model.jnt_qposadr[model.joint(movable[name]).id]
+            data.qpos[adr : adr + 2] += target - xy[name]
+            shifts[name] = [round(float(v), 4) for v in target - xy[name]]
+            xy[name] = target
+        mujoco.mj_forward(model, data)
+        self._record["shifts"] = shifts
+
+    def _draw_position(self, rng, start, others, base, low, high) -> np.ndarray:
+        for _ in range(self.max_tries):
+            angle = rng.uniform(0, 2 * np.pi)
+            dist = rng.uniform(self.min_shift, self.max_shift)
+            cand = start + dist * np.array([np.cos(angle), np.sin(angle)])
+            reach = np.linalg.norm(cand - base)
+            if not (self.reach[0] <= reach <= self.reach[1]) or np.any(cand < low) or np.any(cand > high):
+                continue
+            if all(np.linalg.norm(cand - p) >= self.clearance for p in others.values()):
+                return cand
+        raise RuntimeError(f"no free reachable placement {self.min_shift}-{self.max_shift} m away after {self.max_tries} tries")
+
+
+_SYNONYMS = {
+    r"\bpick up\b": ("grab", "take", "lift", "pick up"),
+    r"\bpick\b": ("grab", "take", "lift"),
+    r"\bplace\b": ("put", "set", "leave"),
+    r"\bput\b": ("place", "set", "move"),
+    r"\bin the\b": ("into the", "inside the", "in the"),
+    r"\bon the\b": ("onto the", "on top of the", "on the"),
+    r"\bopen\b": ("pull open", "open up", "open"),
+    r"\bclose\b": ("shut", "push closed", "close"),
+    r"\bturn on\b": ("switch on", "turn on"),
+    r"\bturn off\b": ("switch off", "turn off"),
+    r"\bpush\b": ("slide", "shove", "push"),
+}
+_TEMPLATES = ("{}", "please {}", "{} now", "can you {}?", "your task: {}", "{}, carefully", "go ahead and {}")
+
+
+def paraphrase(instruction: str, rng: np.random.Generator) -> str:
+    """A seeded paraphrase: verb and preposition synonyms plus a framing template."""
+    text = instruction.strip().lower()
+    for pattern, options in _SYNONYMS.items():
+        text = re.sub(pattern, lambda _m, o=options: o[rng.integers(len(o))], text)
+    return _TEMPLATES[rng.integers(len(_TEMPLATES))].format(text)
+
+
+class LanguagePerturbation(Perturbation):
+    """The instruction is paraphrased (generated or LIBERO-PRO's), or its target swapped (LIBERO-PRO task)."""
+
+    axis = "language"
+    modes = ("generated", "shipped", "target_swap")
+
+    def plan(self, plan: BuildPlan) -> BuildPlan:
+        self._record["original"] = plan.instruction
+        if self.mode == "generated":
+            new = BuildPlan(plan.task, paraphrase(plan.instruction, self.rng()), plan.env_kwargs)
+        else:
+            variant = _shipped_variant(plan.task, "lan" if self.mode == "shipped" else "task")
+            self._record["suite"] = variant.suite
+            new = BuildPlan(variant, variant.language, plan.env_kwargs)
+        self._record["instruction"] = new.instruction
+        return new
+
+
+class EnvPerturbation(Perturbation):
+    """The scene changes around the task: floor and wall textures swapped, the table recoloured."""
+
+    axis = "env"
+
+    def plan(self, plan: BuildPlan) -> BuildPlan:
+        rng = self.rng()
+        style = {"floor_style": FLOOR_STYLES[rng.integers(len(FLOOR_STYLES))], "wall_style": WALL_STYLES[rng.integers(len(WALL_STYLES))]}
+        self._record.update(style)
+        return BuildPlan(plan.task, plan.instruction, {**plan.env_kwargs, "scene_properties": style})
+
+    def after_build(self, domain) -> None:
+        model = domain.sim.model._model
+        rgb = self.rng(1).uniform(0.2, 1.0, size=3)
+        table_mats = {
+            int(model.geom_matid[g])
+            for g in range(model.ngeom)
+            if model.geom_matid[g] >= 0 and model.body(model.geom_bodyid[g]).name in ("table", "coffee_table", "study_table")
+        }
+        for mat in table_mats:
+            model.mat_rgba[mat, :3] = rgb
+        self._record["table_rgb"] = [round(float(c), 3) for c in rgb]
+
+
+PERTURBATIONS: dict[str, type[Perturbation]] = {
+    cls.axis: cls for cls in (ObjectPerturbation, InitPerturbation, LanguagePerturbation, EnvPerturbation)
+}
+
+
+def make_perturbation(axis: str, seed: int = 0, mode: str | None = None) -> Perturbation:
+    """Look an operator up by axis name."""
+    if axis not in PERTURBATIONS:
+        raise unknown_choice("perturbation axis", axis, PERTURBATIONS)
+    return PERTURBATIONS[axis](seed=seed, mode=mode)
+
+
+def parse_perturbations(text: str | None, default_seed: int = 0) -> list[Perturbation]:
+    """Parse `axis[:seed][@mode]` items separated by commas, e.g. "init:3,language@shipped"."""
+    if not text:
+        return []
+    found = []
+    for item in text.split(","):
+        item = item.strip()
+        m = re.fullmatch(r"([a-z_]+)(?::(\d+))?(?:@([a-z_]+))?", item)
+        if m is None:
+            raise UserInputError(f"perturbation {item!r}: expected axis[:seed][@mode], e.g. init:3 or language@shipped")
+        axis, seed, mode = m.groups()
+        found.append(make_perturbation(axis, int(seed) if seed is not None else default_seed, mode))
+    return found

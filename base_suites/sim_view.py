@@ -1,0 +1,211 @@
+"""A read-only view of the LIBERO simulator for the constraint code.
+
+Everything the ITCs need (poses, velocities, contacts with normal forces, the gripper, the held object,
+goal predicates, region sites) is answered here, so no other package reaches into robosuite or
+LIBERO internals. Geoms are mapped once to the scene entity they belong to (a task object, a fixture,
+the robot arm, the gripper, the table or the arena), so contact queries speak in task terms.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+ROBOT = "robot"
+GRIPPER = "gripper"
+ARENA = "arena"
+FINGER_PADS = ("gripper0_finger1_pad_collision", "gripper0_finger2_pad_collision")
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One active contact between two scene entities, with its normal force in newtons."""
+
+    entity_a: str
+    entity_b: str
+    geom_a: str
+    geom_b: str
+    normal_force: float
+    position: tuple[float, float, float]
+
+    def involves(self, entity: str) -> bool:
+        return entity in (self.entity_a, self.entity_b)
+
+    def other(self, entity: str) -> str:
+        return self.entity_b if self.entity_a == entity else self.entity_a
+
+
+@dataclass(frozen=True)
+class Region:
+    """A BDDL region site: centre, orientation and half-extents (None where LIBERO gives none)."""
+
+    name: str
+    parent: str | None
+    position: np.ndarray
+    rotation: np.ndarray
+    half_size: np.ndarray | None
+
+
+def _xyzw(wxyz: np.ndarray) -> np.ndarray:
+    return np.array([wxyz[1], wxyz[2], wxyz[3], wxyz[0]])
+
+
+class SimView:
+    """Read-only queries on one LIBERO env (the robosuite `BDDLBaseDomain` inside a `ControlEnv`)."""
+
+    def __init__(self, domain) -> None:
+        self._domain = domain
+        self._model: mujoco.MjModel = domain.sim.model._model
+        self._force = np.zeros(6)
+        self.objects: tuple[str, ...] = tuple(domain.objects_dict)
+        self.fixtures: tuple[str, ...] = tuple(domain.fixtures_dict)
+        self.regions: tuple[str, ...] = tuple(domain.object_sites_dict)
+        self._body_id = {name: int(domain.obj_body_id[name]) for name in self.objects + self.fixtures}
+        self._geom_entity = self._map_geoms_to_entities()
+        self._pad_geoms = tuple(self._model.geom(n).id for n in FINGER_PADS)
+        self._free_qvel = {
+            name: self._model.jnt_dofadr[self._model.joint(domain.get_object(name).joints[0]).id]
+            for name in self.objects
+            if domain.get_object(name).joints
+        }
+        self._articulations = {
+            name: tuple(domain.get_object(name).joints)
+            for name in self.fixtures + self.objects
+            if name not in self._free_qvel and domain.get_object(name).joints
+        }
+        self.table_height = float(domain.workspace_offset[2]) if hasattr(domain, "workspace_offset") else 0.0
+
+    @property
+    def _data(self) -> mujoco.MjData:
+        # robosuite may rebuild MjData on reset; always read the live one.
+        return self._domain.sim.data._data
+
+    def _map_geoms_to_entities(self) -> list[str]:
+        model = self._model
+        root_to_entity = {}
+        for name, body in self._body_id.items():
+            root_to_entity[body] = name
+        entities = []
+        for g in range(model.ngeom):
+            body = model.geom_bodyid[g]
+            entity = None
+            b = body
+            while b > 0 and entity is None:
+                entity = root_to_entity.get(b)
+                b = model.body_parentid[b]
+            if entity is None:
+                body_name = model.body(body).name
+                if body_name.startswith("gripper0"):
+                    entity = GRIPPER
+                elif body_name.startswith(("robot0", "mount0")):
+                    entity = ROBOT
+                elif body_name == "table" or model.geom(g).name.startswith("table"):
+                    entity = "table"
+                else:
+                    entity = ARENA
+            entities.append(entity)
+        return entities
+
+    # ---- poses and motion -------------------------------------------------------------------
+    def pose(self, entity: str) -> tuple[np.ndarray, np.ndarray]:
+        """World position and orientation quaternion (x, y, z, w) of an object or fixture."""
+        body = self._body_id[entity]
+        return self._data.xpos[body].copy(), _xyzw(self._data.xquat[body])
+
+    def position(self, entity: str) -> np.ndarray:
+        return self._data.xpos[self._body_id[entity]].copy()
+
+    def rotation(self, entity: str) -> np.ndarray:
+        """3x3 world rotation matrix of an object or fixture."""
+        return self._data.xmat[self._body_id[entity]].reshape(3, 3).copy()
+
+    def tilt(self, entity: str) -> float:
+        """Angle in radians between the entity's local z axis and world up."""
+        return float(np.arccos(np.clip(self.rotation(entity)[2, 2], -1.0, 1.0)))
+
+    def velocity(self, entity: str) -> np.ndarray:
+        """Linear velocity (m/s, world frame) of a free-moving object; zeros for fixtures."""
+        adr = self._free_qvel.get(entity)
+        if adr is None:
+            return np.zeros(3)
+        return self._data.qvel[adr : adr + 3].copy()
+
+    def articulation(self, entity: str) -> np.ndarray:
+        """Joint positions of an articulated fixture/object (drawers, doors, knobs); empty otherwise."""
+        joints = self._articulations.get(entity, ())
+        return np.array([self._data.qpos[self._model.jnt_qposadr[self._model.joint(j).id]] for j in joints])
+
+    @property
+    def articulated(self) -> dict[str, tuple[str, ...]]:
+        return dict(self._articulations)
+
+    def eef_position(self) -> np.ndarray:
+        return self._data.site_xpos[self._model.site("gripper0_grip_site").id].copy()
+
+    def eef_rotation(self) -> np.ndarray:
+        return self._data.site_xmat[self._model.site("gripper0_grip_site").id].reshape(3, 3).copy()
+
+    def gripper_opening(self) -> float:
+        """Distance between the finger joints in metres (about 0.08 open, 0 closed on nothing)."""
+        robot = self._domain.robots[0]
+        qpos = self._data.qpos[robot._ref_gripper_joint_pos_indexes]
+        return float(abs(qpos[0]) + abs(qpos[1]))
+
+    # ---- contacts ---------------------------------------------------------------------------
+    def contacts(self) -> list[Contact]:
+        """Active contacts between different entities with their normal forces."""
+        data, model = self._data, self._model
+        found = []
+        for i in range(data.ncon):
+            c = data.contact[i]
+            ea, eb = self._geom_entity[c.geom1], self._geom_entity[c.geom2]
+            if ea == eb:
+                continue
+            mujoco.mj_contactForce(model, data, i, self._force)
+            found.append(
+                Contact(ea, eb, model.geom(c.geom1).name, model.geom(c.geom2).name, float(abs(self._force[0])), tuple(c.pos))
+            )
+        return found
+
+    def held_object(self) -> str | None:
+        """The movable object touched by both finger pads, if any."""
+        data = self._data
+        touching: dict[str, set[int]] = {}
+        for i in range(data.ncon):
+            c = data.contact[i]
+            for pad, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
+                if pad in self._pad_geoms:
+                    entity = self._geom_entity[other]
+                    if entity in self._free_qvel:
+                        touching.setdefault(entity, set()).add(pad)
+        for entity, pads in touching.items():
+            if len(pads) == 2:
+                return entity
+        return None
+
+    # ---- task semantics ---------------------------------------------------------------------
+    def region(self, name: str) -> Region:
+        site = self._domain.object_sites_dict[name]
+        sid = self._model.site(name).id
+        size = getattr(site, "size", None)
+        return Region(
+            name=name,
+            parent=getattr(site, "parent_name", None),
+            position=self._data.site_xpos[sid].copy(),
+            rotation=self._data.site_xmat[sid].reshape(3, 3).copy(),
+            half_size=None if size is None else np.asarray(size, dtype=float),
+        )
+
+    def predicate(self, predicate: tuple[str, ...]) -> bool:
+        """Truth of one BDDL predicate, e.g. ("on", "bowl_1", "plate_1"), evaluated as LIBERO does."""
+        return bool(self._domain._eval_predicate(list(predicate)))
+
+    def goal(self) -> tuple[tuple[str, ...], ...]:
+        return tuple(tuple(p) for p in self._domain.parsed_problem["goal_state"])
+
+    def objects_of_interest(self) -> tuple[str, ...]:
+        return tuple(self._domain.obj_of_interest)
+
+    def time(self) -> float:
+        return float(self._data.time)
