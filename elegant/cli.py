@@ -1,0 +1,86 @@
+"""The `elegant` command line: each subcommand parses its arguments and calls one library function.
+
+Heavy imports (robosuite, LIBERO, torch) happen inside the command functions, so `elegant --help` is
+instant. A user mistake (`UserInputError`) becomes one line on stderr and exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable, Sequence
+
+COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], object]]] = {}
+
+
+def command(name: str, help_text: str):
+    """Register a subcommand: the decorated function adds its arguments, `run` does the work."""
+
+    def register(add_arguments):
+        def bind(run):
+            COMMANDS[name] = (help_text, add_arguments, run)
+            return run
+
+        return bind
+
+    return register
+
+
+def _print_json(result: object) -> None:
+    print(json.dumps(result, indent=2, default=str))
+
+
+def _suites_args(p: argparse.ArgumentParser) -> None:
+    pass
+
+
+@command("suites", "list the LIBERO and LIBERO-PRO suites")(_suites_args)
+def _suites(args: argparse.Namespace) -> None:
+    from base_suites import list_suites, list_tasks
+
+    for suite in list_suites():
+        print(f"{suite:24s} {len(list_tasks(suite)):3d} tasks")
+
+
+def _tasks_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("suite")
+
+
+@command("tasks", "list a suite's tasks: index, instruction, goal, init states")(_tasks_args)
+def _tasks(args: argparse.Namespace) -> None:
+    from base_suites import list_tasks
+
+    for t in list_tasks(args.suite):
+        goal = " & ".join(f"{p[0]}({', '.join(p[1:])})" for p in t.goal)
+        print(f"{t.index:3d}  {t.language}\n     goal: {goal}   init states: {t.n_init_states}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="elegant", description="Measure and improve how elegantly policies execute LIBERO tasks.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (help_text, add_arguments, run) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        add_arguments(p)
+        p.set_defaults(run=run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from base_suites.errors import UserInputError
+
+    args = build_parser().parse_args(argv)
+    try:
+        result = args.run(args)
+    except UserInputError as exc:
+        print(f"elegant {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"elegant {args.command}: interrupted; rerun with --resume where supported", file=sys.stderr)
+        return 130
+    if isinstance(result, dict):
+        _print_json(result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

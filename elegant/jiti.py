@@ -1,0 +1,218 @@
+"""JITI: just-in-time intervention of an elegance critic on a base policy (DESIGN.md section 5).
+
+Re-ranking sampled actions at every step (V-GPS) overrides a good base policy all the time and pays for
+N samples and N critic scores per step. JITI instead watches the critic's score of the action the base
+policy proposes, q_t = Q(s_t, a_t), against the mean m_t of the last `window` scores. Only when
+dq_t = |q_t - m_t| exceeds the threshold tau (a critical moment: the critic sees the situation change)
+does it draw N candidates from the base policy, with a_t kept as candidate 0, and execute the one the
+critic scores highest.
+
+Choices made here, each for a reason:
+- Warm-up: m_t needs `window` past scores, so no intervention happens until the window is full (the
+  first `window` steps of an episode execute the base action in mode "jiti"). A mean of two or three
+  scores would make the very first steps look critical.
+- The window receives the score of the action actually executed (q_t, or the chosen candidate's score
+  after an intervention): the window tracks the value of the trajectory being followed, so after a
+  successful correction the new level becomes the reference instead of triggering again.
+- tau is absolute, or in units of the window's standard deviation (`threshold_mode="std"`), which
+  makes it independent of the critic's scale. The absolute default of 1.0 is one step of elegance
+  reward: along a consistent trajectory Q_t - gamma Q_{t+1} = r_t in [0, 1], so a change of more than 1
+  is more than one step of reward explains.
+- Ties in the argmax go to candidate 0, the base action: JITI never overrides without a reason.
+- Candidates come from `policy.sample(obs, n)` when the base policy has it (its own distribution:
+  GMM, diffusion noise, ...); otherwise from Gaussian perturbations of a_t clipped to the action bounds.
+- Decision time is what JITI adds to a step: scoring, bookkeeping and, at interventions, candidate
+  sampling. The base policy's own forward pass is excluded because it is paid without JITI too.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+from base_suites.errors import UserInputError, unknown_choice
+
+ACTION_DIM = 7
+MODES = ("jiti", "always", "base")
+THRESHOLD_MODES = ("absolute", "std")
+DEFAULT_THRESHOLD = 1.0
+DEFAULT_NOISE_SCALE = 0.1
+
+
+class Critic(Protocol):
+    """What JITI needs from an elegance critic (`critics.load(dir)` returns one)."""
+
+    def bind(self, metadata: Mapping[str, Any]) -> Any: ...
+
+    def q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One logged step: the base action's score, the window statistics and what was executed.
+
+    `mean`, `std`, `dq` and `tau` are None while the window warms up (or without a critic);
+    `q` and `chosen_q` are None only when JITI runs without a critic (mode "base").
+    """
+
+    step: int
+    q: float | None
+    mean: float | None
+    std: float | None
+    dq: float | None
+    tau: float | None
+    intervened: bool
+    chosen: int
+    chosen_q: float | None
+    time: float
+
+
+def perturbation_candidates(action: np.ndarray, n: int, scale: float, rng: np.random.Generator) -> np.ndarray:
+    """`n` candidates for a deterministic policy: `action` itself first, then Gaussian perturbations of it,
+    clipped to the action bounds [-1, 1] so the critic scores what the env would execute."""
+    action = np.asarray(action, dtype=np.float64).reshape(ACTION_DIM)
+    noise = rng.normal(0.0, scale, size=(n - 1, ACTION_DIM))
+    return np.clip(np.vstack([action, action + noise]), -1.0, 1.0)
+
+
+def _state_of(obs: Any) -> np.ndarray:
+    if isinstance(obs, Mapping):
+        if "state" not in obs:
+            raise UserInputError("JITI's critic needs the low-dimensional 'state' observation: make the env with obs='lowdim' or 'both'")
+        return np.asarray(obs["state"])
+    return np.asarray(obs)
+
+
+class JITI:
+    """A policy (obs -> 7-D action) that wraps a base policy and intervenes at critical moments.
+
+    Modes: "jiti" (intervene when dq > tau), "always" (re-select every step: the V-GPS baseline),
+    "base" (never intervene, still log the critic's scores; the critic may then be None).
+    """
+
+    def __init__(
+        self,
+        policy: Any,
+        critic: Critic | None,
+        window: int = 10,
+        threshold: float = DEFAULT_THRESHOLD,
+        threshold_mode: str = "absolute",
+        n_candidates: int = 16,
+        mode: str = "jiti",
+        noise_scale: float = DEFAULT_NOISE_SCALE,
+        seed: int = 0,
+    ) -> None:
+        if mode not in MODES:
+            raise unknown_choice("JITI mode", mode, MODES)
+        if threshold_mode not in THRESHOLD_MODES:
+            raise unknown_choice("JITI threshold_mode", threshold_mode, THRESHOLD_MODES)
+        if int(window) < 1:
+            raise UserInputError(f"JITI window must be >= 1, got {window}")
+        if int(n_candidates) < 2:
+            raise UserInputError(f"JITI n_candidates must be >= 2 (the base action plus alternatives), got {n_candidates}")
+        if float(threshold) < 0 or float(noise_scale) < 0:
+            raise UserInputError(f"JITI threshold and noise_scale must be >= 0, got {threshold} and {noise_scale}")
+        if critic is None and mode != "base":
+            raise UserInputError(f"JITI mode {mode!r} needs a critic; only mode 'base' runs without one")
+        self.policy = policy
+        self.critic = critic
+        self.window = int(window)
+        self.threshold = float(threshold)
+        self.threshold_mode = threshold_mode
+        self.n_candidates = int(n_candidates)
+        self.mode = mode
+        self.noise_scale = float(noise_scale)
+        self.seed = int(seed)
+        self._sample = getattr(policy, "sample", None) if callable(getattr(policy, "sample", None)) else None
+        self._rng = np.random.default_rng(self.seed)
+        self._scores: deque[float] = deque(maxlen=self.window)
+        self.log: list[Decision] = []
+
+    def config(self) -> dict[str, Any]:
+        """The settings that determine JITI's decisions (recorded with evaluation runs)."""
+        return {
+            "mode": self.mode,
+            "window": self.window,
+            "threshold": self.threshold,
+            "threshold_mode": self.threshold_mode,
+            "n_candidates": self.n_candidates,
+            "noise_scale": self.noise_scale,
+            "candidates": "policy.sample" if self._sample is not None else "gaussian",
+        }
+
+    def reset(self, metadata: Mapping[str, Any], seed: int | None = None) -> None:
+        """Start an episode: forward to the base policy, bind the critic to the env's layout, clear the
+        window and the log; `seed` (if given) restarts the perturbation generator for reproducible episodes."""
+        reset = getattr(self.policy, "reset", None)
+        if callable(reset):
+            reset(metadata)
+        if self.critic is not None:
+            self.critic.bind(metadata)
+        if seed is not None:
+            self._rng = np.random.default_rng(int(seed))
+        self._scores.clear()
+        self.log = []
+
+    def __call__(self, obs: Any) -> np.ndarray:
+        action = np.clip(np.asarray(self.policy(obs), dtype=np.float64).reshape(ACTION_DIM), -1.0, 1.0)
+        start = time.perf_counter()
+        if self.critic is None:
+            self.log.append(Decision(len(self.log), None, None, None, None, None, False, 0, None, time.perf_counter() - start))
+            return action
+        state = _state_of(obs)
+        mean = std = dq = tau = None
+        if len(self._scores) == self.window:
+            scores = np.fromiter(self._scores, dtype=np.float64, count=self.window)
+            mean, std = float(scores.mean()), float(scores.std())
+            tau = self.threshold if self.threshold_mode == "absolute" else self.threshold * std
+        if self.mode == "always":
+            candidates = self._candidates(obs, action)
+            scores_c = self._score(state, candidates)
+            q = float(scores_c[0])
+        else:
+            q = float(self._score(state, action[None])[0])
+            scores_c = None
+        if mean is not None:
+            dq = abs(q - mean)
+        if self.mode == "jiti" and dq is not None and dq > tau:
+            candidates = self._candidates(obs, action)
+            scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
+        chosen, chosen_q, executed = 0, q, action
+        if scores_c is not None:
+            chosen = int(np.argmax(scores_c))  # first maximum: the base action wins ties
+            chosen_q, executed = float(scores_c[chosen]), candidates[chosen]
+        self._scores.append(chosen_q)
+        self.log.append(
+            Decision(len(self.log), q, mean, std, dq, tau, scores_c is not None, chosen, chosen_q, time.perf_counter() - start)
+        )
+        return executed
+
+    def _candidates(self, obs: Any, action: np.ndarray) -> np.ndarray:
+        n = self.n_candidates
+        if self._sample is None:
+            return perturbation_candidates(action, n, self.noise_scale, self._rng)
+        drawn = np.asarray(self._sample(obs, n - 1), dtype=np.float64)
+        if drawn.shape != (n - 1, ACTION_DIM):
+            raise ValueError(f"{type(self.policy).__name__}.sample(obs, {n - 1}) returned shape {drawn.shape}, expected ({n - 1}, {ACTION_DIM})")
+        return np.clip(np.vstack([action, drawn]), -1.0, 1.0)
+
+    def _score(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        scores = np.asarray(self.critic.q(state, actions), dtype=np.float64).reshape(-1)
+        if scores.shape != (len(actions),):
+            raise ValueError(f"critic.q returned {scores.shape[0]} scores for {len(actions)} actions")
+        return scores
+
+    @property
+    def interventions(self) -> int:
+        """Steps of the current episode at which candidates were drawn and re-ranked."""
+        return sum(d.intervened for d in self.log)
+
+    def trace(self) -> dict[str, list]:
+        """The episode's decision log as columns (JSON-ready), one list per `Decision` field."""
+        fields = Decision.__dataclass_fields__
+        rows = [asdict(d) for d in self.log]
+        return {name: [row[name] for row in rows] for name in fields}

@@ -1,0 +1,79 @@
+"""What the rest of the project expects from a base policy.
+
+JITI, the evaluation runner and the CLI only ever talk to a `Policy`: a callable from the env's
+observation dict to one 7-D action in [-1, 1], plus `sample(obs, n)` for candidate actions at critical
+moments and `reset(metadata, seed=)` at episode start. User objects need only be callable (or a LeRobot
+or TorchRL policy); `elegant.policies.as_policy` supplies the rest. The Gaussian candidate sampler used
+for deterministic policies lives here because every adapter shares it.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+
+from base_suites.errors import UserInputError
+
+ACTION_DIM = 7
+ACTION_LOW = -1.0
+ACTION_HIGH = 1.0
+
+Observation = Mapping[str, np.ndarray]
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """A base policy as JITI and the evaluation runner use it.
+
+    `__call__(obs)` is the policy's step: it may advance internal state (history, action queues).
+    `sample(obs, n)` returns `n` candidate actions for the same step without advancing it again when
+    called right after `__call__(obs)` with that observation. `reset(metadata, seed=)` starts an episode:
+    `metadata` is the env's `metadata` dict (suite, task_index, instruction, state_layout, ...) so a
+    multi-task policy knows its task and can refuse an observation layout it was not trained on; `seed`
+    reseeds candidate sampling so an episode's candidates do not depend on the episodes before it.
+    """
+
+    def __call__(self, obs: Observation) -> np.ndarray: ...
+
+    def sample(self, obs: Observation, n: int) -> np.ndarray: ...
+
+    def reset(self, metadata: Mapping[str, Any] | None = None, *, seed: int | None = None) -> None: ...
+
+
+def as_action(value: Any, source: str = "policy") -> np.ndarray:
+    """One action as a float64 (7,) array clipped to the action bounds; refuse any other shape."""
+    action = np.asarray(value, dtype=np.float64).reshape(-1)
+    if action.shape != (ACTION_DIM,):
+        raise UserInputError(f"{source} returned an action of shape {np.shape(value)}; expected ({ACTION_DIM},)")
+    return np.clip(action, ACTION_LOW, ACTION_HIGH)
+
+
+def check_count(n: int) -> int:
+    """Validate a requested number of candidates."""
+    if int(n) != n or n < 1:
+        raise UserInputError(f"number of candidate actions must be a positive integer, got {n!r}")
+    return int(n)
+
+
+class GaussianCandidates:
+    """Candidates for a deterministic policy: its action plus clipped Gaussian perturbations.
+
+    Candidate 0 is the unperturbed action, so selecting among candidates can always fall back to what
+    the policy would have done. The generator is seeded, so the same seed gives the same candidates.
+    """
+
+    def __init__(self, scale: float = 0.1, seed: int = 0) -> None:
+        if not scale >= 0:
+            raise UserInputError(f"candidate noise scale must be >= 0, got {scale!r}")
+        self.scale = float(scale)
+        self.reseed(seed)
+
+    def reseed(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, action: np.ndarray, n: int) -> np.ndarray:
+        n = check_count(n)
+        out = np.repeat(np.asarray(action, dtype=np.float64).reshape(1, ACTION_DIM), n, axis=0)
+        out[1:] += self.rng.normal(0.0, self.scale, size=(n - 1, ACTION_DIM))
+        return np.clip(out, ACTION_LOW, ACTION_HIGH)

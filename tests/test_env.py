@@ -1,0 +1,127 @@
+"""The gymnasium env on the real LIBERO simulator: creation, determinism, success, TorchRL wrapping."""
+import numpy as np
+import pytest
+
+from base_suites import UserInputError, list_suites, make_env
+
+pytestmark = pytest.mark.sim
+
+
+@pytest.fixture(scope="module")
+def goal_env():
+    env = make_env("libero_goal", 0, seed=0, max_steps=30)
+    yield env
+    env.close()
+
+
+@pytest.mark.parametrize("suite", ["libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90"])
+def test_env_creation_for_every_main_suite(suite):
+    env = make_env(suite, 0, seed=1, settle_steps=2)
+    obs, info = env.reset(seed=2)
+    dim = sum(size for _, size in env.metadata["state_layout"])
+    assert obs["state"].shape == (dim,) and env.observation_space.contains(obs)
+    assert set(info) >= {"success", "goal_predicates", "instruction", "init_state"}
+    assert env.action_space.shape == (7,)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    assert env.observation_space.contains(obs) and not terminated
+    env.close()
+
+
+def test_pro_variant_suites_build():
+    pro = [s for s in list_suites() if s.startswith("libero_goal_")]
+    for suite in pro:
+        env = make_env(suite, 1, seed=0, settle_steps=0)
+        assert env.metadata["suite"] == suite
+        env.close()
+
+
+def test_same_seed_and_actions_replay_bit_exactly(goal_env):
+    actions = np.random.default_rng(0).uniform(-1, 1, size=(15, 7))
+
+    def rollout():
+        obs, _ = goal_env.reset(seed=7)
+        states = [obs["state"]]
+        for a in actions:
+            obs, *_ = goal_env.step(a)
+            states.append(obs["state"])
+        return np.array(states), goal_env.get_sim_state()
+
+    (a, sa), (b, sb) = rollout(), rollout()
+    assert np.array_equal(a, b) and np.array_equal(sa, sb)
+    goal_env.reset(seed=8)
+    assert goal_env.init_index != -1
+
+
+def test_init_state_by_index_and_by_seed(goal_env):
+    _, info = goal_env.reset(options={"init_state": 3})
+    assert info["init_state"] == 3
+    _, i1 = goal_env.reset(seed=11)
+    _, i2 = goal_env.reset(seed=11)
+    assert i1["init_state"] == i2["init_state"]
+    with pytest.raises(UserInputError):
+        goal_env.reset(options={"init_state": 50})
+
+
+def test_state_satisfying_the_goal_reports_success(goal_env):
+    goal_env.reset(options={"init_state": 0})
+    assert not goal_env.goal_status()["open(wooden_cabinet_1_middle_region)"]
+    # Open the middle drawer by setting its joint in the MuJoCo state, then take one still step.
+    domain = goal_env.domain
+    joint = domain.object_sites_dict["wooden_cabinet_1_middle_region"].joints[0]
+    domain.sim.data.set_joint_qpos(joint, -0.15)
+    domain.sim.forward()
+    goal_env.set_sim_state(goal_env.get_sim_state())
+    _, reward, terminated, truncated, info = goal_env.step(np.array([0, 0, 0, 0, 0, 0, -1.0]))
+    assert terminated and info["success"] and reward == 1.0
+    assert info["goal_predicates"] == {"open(wooden_cabinet_1_middle_region)": True}
+
+
+def test_truncation_at_max_steps(goal_env):
+    goal_env.reset(seed=0)
+    truncated = False
+    for t in range(30):
+        _, _, terminated, truncated, _ = goal_env.step(np.zeros(7))
+        assert not terminated
+        assert truncated == (t == 29)
+
+
+def test_sim_view_reports_poses_contacts_and_gripper(goal_env):
+    goal_env.reset(options={"init_state": 0})
+    view = goal_env.sim
+    pos, quat = view.pose("akita_black_bowl_1")
+    assert pos.shape == (3,) and abs(np.linalg.norm(quat) - 1) < 1e-6
+    assert view.tilt("akita_black_bowl_1") < 0.2
+    contacts = view.contacts()
+    assert any(c.involves("akita_black_bowl_1") and c.other("akita_black_bowl_1") == "table" for c in contacts)
+    assert 0.06 < view.gripper_opening() < 0.09 and view.held_object() is None
+    assert view.region("wooden_cabinet_1_middle_region").half_size is not None
+
+
+def test_gymnasium_check_env_passes():
+    from gymnasium.utils.env_checker import check_env
+
+    env = make_env("libero_object", 0, seed=0, settle_steps=1, max_steps=5)
+    check_env(env, skip_render_check=True)
+    env.close()
+
+
+def test_torchrl_gym_wrapper_passes_check_env_specs():
+    from torchrl.envs import GymWrapper
+    from torchrl.envs.utils import check_env_specs
+
+    env = GymWrapper(make_env("libero_object", 1, seed=0, settle_steps=1, max_steps=5))
+    check_env_specs(env, seed=0)
+    td = env.rollout(3)
+    dim = sum(size for _, size in env._env.metadata["state_layout"])
+    # TorchRL names a single-entry Dict observation "observation".
+    assert td["next", "observation"].shape == (3, dim)
+
+
+def test_rgb_observation_is_upright_and_rendered():
+    env = make_env("libero_object", 0, seed=0, obs="both", settle_steps=1, camera_size=64)
+    obs, _ = env.reset(seed=0)
+    img = obs["agentview"]
+    assert img.shape == (64, 64, 3) and img.dtype == np.uint8 and img.std() > 5
+    # Upright: the floor (bottom rows) is closer to the camera and brighter-varying than the top wall.
+    assert not np.array_equal(img, env.domain._get_observations()["agentview_image"])
+    env.close()

@@ -1,0 +1,89 @@
+"""LIBERO-PRO perturbation operators on the real simulator: each changes what it claims and only that."""
+import numpy as np
+import pytest
+
+from base_suites import UserInputError, make_env, parse_perturbations
+from base_suites.perturbations import paraphrase
+
+pytestmark = pytest.mark.sim
+
+
+def test_parse_perturbations_and_refusals():
+    ops = parse_perturbations("init:3,language@shipped", default_seed=9)
+    assert [(p.axis, p.seed, p.mode) for p in ops] == [("init", 3, "generated"), ("language", 9, "shipped")]
+    with pytest.raises(UserInputError, match="expected one of"):
+        parse_perturbations("gravity")
+    with pytest.raises(UserInputError, match="axis\\[:seed\\]"):
+        parse_perturbations("init:x")
+    with pytest.raises(UserInputError, match="mode"):
+        parse_perturbations("env@shipped")
+
+
+def test_paraphrase_is_seeded_and_varied():
+    text = "pick up the black bowl and place it on the plate"
+    same = {paraphrase(text, np.random.default_rng(1)) for _ in range(3)}
+    assert len(same) == 1
+    variants = {paraphrase(text, np.random.default_rng(s)) for s in range(40)}
+    assert len(variants) > 15 and text not in variants or len(variants) > 15
+
+
+def test_init_shift_moves_task_objects_into_free_reachable_space():
+    clean = make_env("libero_spatial", 0, seed=0)
+    clean.reset(options={"init_state": 4})
+    target = "akita_black_bowl_1"
+    before = clean.sim.position(target)
+    others = {n: clean.sim.position(n) for n in clean.sim.objects if n != target}
+    clean.close()
+    env = make_env("libero_spatial", 0, seed=0, perturbation="init:5")
+    _, info = env.reset(options={"init_state": 4})
+    after = env.sim.position(target)
+    shift = np.linalg.norm((after - before)[:2])
+    assert 0.18 <= shift <= 0.32, shift
+    assert all(np.linalg.norm((after - p)[:2]) >= 0.07 for p in others.values())
+    assert abs(after[2] - before[2]) < 0.03 and env.sim.tilt(target) < 0.3  # still resting upright on the table
+    record = info["perturbation"][0]
+    assert record["axis"] == "init" and target in record["shifts"]
+    assert not info["success"]
+    # Seeded: the same seed gives the same placement, another seed another one.
+    env.reset(options={"init_state": 4}, seed=1)
+    p1 = env.sim.position(target)
+    env.reset(options={"init_state": 4}, seed=1)
+    assert np.allclose(p1, env.sim.position(target))
+    env.close()
+
+
+def test_object_recolour_changes_task_object_materials_only():
+    env = make_env("libero_object", 2, seed=0, perturbation="object:4", obs="both", camera_size=64, settle_steps=1)
+    plain = make_env("libero_object", 2, seed=0, obs="both", camera_size=64, settle_steps=1)
+    o1, info = env.reset(options={"init_state": 0})
+    o2, _ = plain.reset(options={"init_state": 0})
+    record = info["perturbation"][0]
+    assert set(record["colours"]) == set(env.domain.obj_of_interest) & set(env.domain.obj_body_id)
+    assert np.array_equal(o1["state"], o2["state"])  # appearance only: the physics is identical
+    assert np.abs(o1["agentview"].astype(int) - o2["agentview"].astype(int)).sum() > 0
+    assert env.metadata["goal"] == plain.metadata["goal"]
+    env.close(), plain.close()
+
+
+def test_language_operators():
+    gen = make_env("libero_goal", 1, seed=0, perturbation="language:2", settle_steps=0)
+    assert gen.instruction != gen.task.language and gen.metadata["goal"] == [list(p) for p in gen.task.goal]
+    shipped = make_env("libero_goal", 1, perturbation="language@shipped", settle_steps=0)
+    assert shipped.task.suite == "libero_goal_lan" and shipped.instruction == shipped.task.language
+    swap = make_env("libero_goal", 0, perturbation="language@target_swap", settle_steps=0)
+    assert swap.metadata["goal"] != [["open", "wooden_cabinet_1_middle_region"]]
+    for e in (gen, shipped, swap):
+        e.close()
+
+
+def test_env_swap_changes_scene_style_and_table():
+    env = make_env("libero_goal", 0, seed=0, perturbation="env:3", settle_steps=0)
+    record = env.perturbations[0].describe()
+    assert record["floor_style"] and record["wall_style"] and len(record["table_rgb"]) == 3
+    plain = make_env("libero_goal", 0, seed=0, settle_steps=0)
+    # The kitchen scene's default style is gray-ceramic floor and yellow-linen walls.
+    assert (record["floor_style"], record["wall_style"]) != ("gray-ceramic", "yellow-linen")
+    tex, plain_tex = env.domain.sim.model._model.tex_data, plain.domain.sim.model._model.tex_data
+    assert tex.shape != plain_tex.shape or not np.array_equal(tex, plain_tex)
+    assert np.array_equal(env.reset(seed=0)[0]["state"], plain.reset(seed=0)[0]["state"])
+    env.close(), plain.close()
