@@ -15,7 +15,12 @@ import numpy as np
 ROBOT = "robot"
 GRIPPER = "gripper"
 ARENA = "arena"
-FINGER_PADS = ("gripper0_finger1_pad_collision", "gripper0_finger2_pad_collision")
+_CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
+# Collision geoms of the two fingers (pad and finger body: a grasped can often rests on the finger body).
+FINGERS = (
+    ("gripper0_finger1_collision", "gripper0_finger1_pad_collision"),
+    ("gripper0_finger2_collision", "gripper0_finger2_pad_collision"),
+)
 
 
 @dataclass(frozen=True)
@@ -63,7 +68,8 @@ class SimView:
         self.regions: tuple[str, ...] = tuple(domain.object_sites_dict)
         self._body_id = {name: int(domain.obj_body_id[name]) for name in self.objects + self.fixtures}
         self._geom_entity = self._map_geoms_to_entities()
-        self._pad_geoms = tuple(self._model.geom(n).id for n in FINGER_PADS)
+        self._collision_geoms: dict[str, np.ndarray] = {}
+        self._finger_of_geom = {self._model.geom(n).id: side for side, names in enumerate(FINGERS) for n in names}
         self._free_qvel = {
             name: self._model.jnt_dofadr[self._model.joint(domain.get_object(name).joints[0]).id]
             for name in self.objects
@@ -131,10 +137,69 @@ class SimView:
             return np.zeros(3)
         return self._data.qvel[adr : adr + 3].copy()
 
+    def geom_points(self, entity: str, body: str | None = None) -> np.ndarray:
+        """World-frame corners of the bounding boxes of an entity's collision geoms, shape (8k, 3).
+
+        Cheap shape knowledge for planners and constraints: extents, top height, footprint. With `body`,
+        only the geoms of that one body of the entity (a drawer, a knob).
+        """
+        key = entity if body is None else f"{entity}:{body}"
+        geoms = self._collision_geoms.get(key)
+        if geoms is None:
+            model = self._model
+            body_id = None if body is None else model.body(body).id
+            geoms = np.array(
+                [
+                    g
+                    for g in range(model.ngeom)
+                    if self._geom_entity[g] == entity
+                    and (model.geom_contype[g] or model.geom_conaffinity[g])
+                    and (body_id is None or model.geom_bodyid[g] == body_id)
+                ],
+                dtype=int,
+            )
+            self._collision_geoms[key] = geoms
+        data = self._data
+        centres = self._model.geom_aabb[geoms, :3]
+        halves = self._model.geom_aabb[geoms, 3:]
+        local = centres[:, None, :] + halves[:, None, :] * _CORNERS[None]
+        rot = data.geom_xmat[geoms].reshape(-1, 3, 3)
+        world = np.einsum("gij,gkj->gki", rot, local) + data.geom_xpos[geoms][:, None, :]
+        return world.reshape(-1, 3)
+
     def articulation(self, entity: str) -> np.ndarray:
         """Joint positions of an articulated fixture/object (drawers, doors, knobs); empty otherwise."""
         joints = self._articulations.get(entity, ())
         return np.array([self._data.qpos[self._model.jnt_qposadr[self._model.joint(j).id]] for j in joints])
+
+    def joint(self, name: str) -> dict[str, object]:
+        """A joint's current value, world axis and anchor, and the body it moves."""
+        model, data = self._model, self._data
+        jid = model.joint(name).id
+        return {
+            "qpos": float(data.qpos[model.jnt_qposadr[jid]]),
+            "axis": data.xaxis[jid].copy(),
+            "anchor": data.xanchor[jid].copy(),
+            "body": model.body(model.jnt_bodyid[jid]).name,
+            "range": model.jnt_range[jid].copy(),
+        }
+
+    def joint_type(self, name: str) -> str:
+        """'free', 'ball', 'slide' or 'hinge'."""
+        return ("free", "ball", "slide", "hinge")[int(self._model.jnt_type[self._model.joint(name).id])]
+
+    def articulation_joints(self, target: str) -> tuple[str, ...]:
+        """Joints that open/close/turn a region (a drawer) or an articulated entity (a door, a knob)."""
+        if target in self.regions:
+            joints = tuple(getattr(self._domain.object_sites_dict[target], "joints", ()) or ())
+            if joints:
+                return joints
+            target = self._domain.object_sites_dict[target].parent_name
+        return self._articulations.get(target, ())
+
+    def articulation_state(self, target: str, query: str) -> bool:
+        """LIBERO's own open/close/turnon/turnoff test for one joint value set (a predicate without a goal)."""
+        return self.predicate((query, target))
 
     @property
     def articulated(self) -> dict[str, tuple[str, ...]]:
@@ -169,18 +234,19 @@ class SimView:
         return found
 
     def held_object(self) -> str | None:
-        """The movable object touched by both finger pads, if any."""
+        """The movable object touched by both fingers, if any."""
         data = self._data
         touching: dict[str, set[int]] = {}
         for i in range(data.ncon):
             c = data.contact[i]
-            for pad, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
-                if pad in self._pad_geoms:
+            for finger_geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
+                side = self._finger_of_geom.get(finger_geom)
+                if side is not None:
                     entity = self._geom_entity[other]
                     if entity in self._free_qvel:
-                        touching.setdefault(entity, set()).add(pad)
-        for entity, pads in touching.items():
-            if len(pads) == 2:
+                        touching.setdefault(entity, set()).add(side)
+        for entity, sides in touching.items():
+            if len(sides) == 2:
                 return entity
         return None
 

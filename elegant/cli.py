@@ -55,6 +55,36 @@ def _tasks(args: argparse.Namespace) -> None:
         print(f"{t.index:3d}  {t.language}\n     goal: {goal}   init states: {t.n_init_states}")
 
 
+def _task_list(text: str | None) -> list[int] | None:
+    from base_suites.errors import UserInputError
+
+    if text is None:
+        return None
+    try:
+        return [int(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise UserInputError(f"--tasks {text!r}: expected comma-separated task indices, e.g. 0,3") from None
+
+
+def _demos_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--suite", required=True)
+    p.add_argument("--tasks", help="comma-separated task indices (default: all 10)")
+    p.add_argument("--episodes", type=int, default=50, help="episodes per task")
+    p.add_argument("--quality", default="clean", help="clean, mixed, or knob=prob,... (knobs: collide, drop, misplace, tilt, wrong_order, jerky, regrasp)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True)
+    p.add_argument("--resume", action="store_true", help="continue an interrupted file")
+
+
+@command("demos", "roll out scripted experts and write a LIBERO-layout HDF5 demos file")(_demos_args)
+def _demos(args: argparse.Namespace) -> dict:
+    from annotations.collect import collect_demos
+    from base_suites.experts import parse_quality
+
+    return collect_demos(args.suite, _task_list(args.tasks), args.episodes, args.out, quality=parse_quality(args.quality),
+                         seed=args.seed, resume=args.resume)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="elegant", description="Measure and improve how elegantly policies execute LIBERO tasks.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -1,0 +1,165 @@
+"""Skills for articulated fixtures: drawers (slide joints), doors (hinges), stove knobs.
+
+Drawers are pulled by their handle with the hand horizontal and the fingers pinching the handle bar
+from above and below, then pushed shut with the closed hand on the drawer front. Knobs are grasped by
+their grip bar and turned by rotating the wrist about the knob's vertical hinge.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_z
+from base_suites.experts.skills import Actions, SkillContext
+from base_suites.sim_view import SimView
+
+
+def container_of(view: SimView, target: str) -> str | None:
+    """The articulated entity whose joint must be open before something can go into `target`."""
+    if target in view.regions and view.articulation_joints(target):
+        return view.region(target).parent
+    return None
+
+
+def _hand_facing(direction: np.ndarray) -> np.ndarray:
+    """Rotation with the gripper pointing along `direction` (horizontal), fingers closing vertically."""
+    z = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+    x = np.array([0.0, 0.0, 1.0])
+    y = np.cross(z, x)
+    return np.column_stack([x, y, z])
+
+
+def _slide(view: SimView, target: str) -> tuple[str, np.ndarray, np.ndarray]:
+    """The drawer joint, the world direction it opens in, and its handle point."""
+    joint = view.articulation_joints(target)[0]
+    info = view.joint(joint)
+    opening = -info["axis"]  # LIBERO drawers count as open below a qpos threshold
+    opening[2] = 0.0
+    opening /= np.linalg.norm(opening)
+    entity = view.region(target).parent if target in view.regions else target
+    pts = view.geom_points(entity, body=info["body"])
+    reach = pts @ opening
+    front = pts[reach >= reach.max() - 0.012]
+    handle = front.mean(axis=0)
+    return joint, opening, handle
+
+
+def open_(ctx: SkillContext, target: str) -> Actions:
+    """Open a drawer (pull its handle) or a hinged door; True once LIBERO calls it open."""
+    view = ctx.view
+    joint = view.articulation_joints(target)[0]
+    if view.joint(joint)["range"] is not None and _is_slide(view, joint):
+        return (yield from _pull_drawer(ctx, target))
+    return (yield from _swing_door(ctx, target, opening=True))
+
+
+def close(ctx: SkillContext, target: str) -> Actions:
+    """Close a drawer (push its front) or a hinged door."""
+    view = ctx.view
+    joint = view.articulation_joints(target)[0]
+    if _is_slide(view, joint):
+        return (yield from _push_drawer(ctx, target))
+    return (yield from _swing_door(ctx, target, opening=False))
+
+
+def _is_slide(view: SimView, joint: str) -> bool:
+    return view.joint_type(joint) == "slide"
+
+
+def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
+    view = ctx.view
+    _, opening, handle = _slide(view, target)
+    rot = _hand_facing(-opening)
+    standoff = handle + opening * 0.10
+    yield from ctx.goto(np.array([*view.eef_position()[:2], max(view.eef_position()[2], handle[2] + 0.05)]), rot, OPEN, tol=0.03, rot_tol=0.2, max_steps=60)
+    yield from ctx.goto(standoff, rot, OPEN, tol=0.01, max_steps=120)
+    yield from ctx.goto(handle + opening * 0.005, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
+    yield from ctx.hold(CLOSE, 10, rot)
+    for _ in range(3):
+        goal = view.eef_position() + opening * 0.20
+        yield from ctx.goto(goal, rot, CLOSE, tol=0.015, max_steps=80, speed=0.5)
+        if view.predicate(("open", target)):
+            break
+    yield from ctx.hold(OPEN, 8, rot)
+    yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
+    return view.predicate(("open", target))
+
+
+def _push_drawer(ctx: SkillContext, target: str) -> Actions:
+    view = ctx.view
+    _, opening, handle = _slide(view, target)
+    rot = _hand_facing(-opening)
+    start = handle + opening * 0.08
+    yield from ctx.goto(np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.08)]), rot, CLOSE, tol=0.02, rot_tol=0.2, max_steps=100)
+    yield from ctx.goto(start, rot, CLOSE, tol=0.01, max_steps=80)
+    for _ in range(3):
+        goal = view.eef_position() - opening * 0.25
+        yield from ctx.goto(goal, rot, CLOSE, tol=0.02, max_steps=80, speed=0.6)
+        if view.predicate(("close", target)):
+            break
+    yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
+    return view.predicate(("close", target))
+
+
+def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
+    """Hinged doors (the microwave): push the door's free edge along its arc with the closed hand."""
+    view = ctx.view
+    joint = view.articulation_joints(target)[0]
+    info = view.joint(joint)
+    entity = view.region(target).parent if target in view.regions else target
+    pts = view.geom_points(entity, body=info["body"])
+    anchor, axis = info["anchor"], info["axis"]
+    radial = pts - anchor
+    radial -= np.outer(radial @ axis, axis)
+    edge = pts[np.argmax(np.linalg.norm(radial, axis=1))]
+    arm = edge - anchor
+    arm -= (arm @ axis) * axis
+    radius = np.linalg.norm(arm)
+    sign = 1.0 if opening else -1.0
+    rot = grasp_rotation(0.0)
+    query = "open" if opening else "close"
+    for step in range(1, 7):
+        angle = sign * 0.25 * step
+        r = _rot_about(axis, angle)
+        point = anchor + r @ arm * (0.85)
+        point[2] = edge[2] if abs(axis[2]) > 0.9 else point[2]
+        yield from ctx.goto(point, rot, CLOSE, tol=0.02, max_steps=40, speed=0.6)
+        if view.predicate((query, target)):
+            break
+    yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), rot, OPEN, tol=0.03, max_steps=30)
+    return view.predicate((query, target)) and radius > 0
+
+
+def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
+    from base_suites.experts.control import rot_axis
+
+    return rot_axis(axis, angle)
+
+
+def turn(ctx: SkillContext, target: str, on: bool) -> Actions:
+    """Turn a stove knob on or off: grasp its grip bar from above and rotate about the hinge."""
+    view = ctx.view
+    joint = view.articulation_joints(target)[0]
+    info = view.joint(joint)
+    pts = view.geom_points(target, body=info["body"])
+    top = pts[pts[:, 2] >= pts[:, 2].max() - 0.03]
+    centre = top.mean(axis=0)
+    extent = top.max(axis=0) - top.min(axis=0)
+    # Fingers close across the bar's thin horizontal side.
+    yaw = 0.0 if extent[1] <= extent[0] else np.pi / 2
+    grip = np.array([centre[0], centre[1], top[:, 2].max() - 0.015])
+    rot = grasp_rotation(yaw)
+    yield from ctx.goto(np.array([*grip[:2], grip[2] + 0.10]), rot, OPEN, tol=0.015, max_steps=150)
+    yield from ctx.goto(grip, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
+    yield from ctx.hold(CLOSE, 10, rot)
+    sign = (1.0 if on else -1.0) * np.sign(info["axis"][2] or 1.0)
+    query = "turnon" if on else "turnoff"
+    anchor = info["anchor"]
+    for k in range(1, 8):
+        angle = sign * 0.15 * k
+        pos = anchor + rot_z(angle) @ (grip - anchor)
+        yield from ctx.goto(pos, rot_z(angle) @ rot, CLOSE, tol=0.01, rot_tol=0.05, max_steps=25, speed=0.5)
+        if view.predicate((query, target)) and k >= 5:
+            break
+    yield from ctx.hold(OPEN, 8)
+    yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), view.eef_rotation(), OPEN, tol=0.02, max_steps=30)
+    return view.predicate((query, target))

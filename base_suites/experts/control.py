@@ -1,0 +1,74 @@
+"""Closed-loop end-effector servoing through LIBERO's OSC_POSE delta action space.
+
+OSC moves slower than its nominal 0.05 m / 0.5 rad per step and leaves a few centimetres of steady
+error near the robot base, so targets are tracked on *measured* positions with a proportional term plus
+a small integral term, and a move is done only when the measured error is within tolerance.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+POS_SCALE = 0.05  # metres per unit action (robosuite OSC_POSE output_max)
+ROT_SCALE = 0.5  # radians per unit action
+OPEN, CLOSE = -1.0, 1.0
+# Gripper pointing straight down with its fingers closing along world y: LIBERO's home orientation.
+DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+def rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rot_axis(axis: np.ndarray, angle: float) -> np.ndarray:
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def rotation_error(target: np.ndarray, current: np.ndarray) -> np.ndarray:
+    """Axis-angle vector (world frame) that rotates `current` onto `target`."""
+    r = target @ current.T
+    angle = np.arccos(np.clip((np.trace(r) - 1) / 2, -1.0, 1.0))
+    if angle < 1e-6:
+        return np.zeros(3)
+    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    norm = np.linalg.norm(axis)
+    if norm < 1e-9:  # angle near pi: pick the dominant diagonal axis
+        axis = np.sqrt(np.clip((np.diag(r) + 1) / 2, 0, None))
+        norm = np.linalg.norm(axis)
+    return axis / norm * angle
+
+
+def grasp_rotation(yaw: float, tilt_axis: np.ndarray | None = None, tilt: float = 0.0) -> np.ndarray:
+    """Gripper pointing down, fingers closing along world direction (sin(yaw)... see DOWN), optionally tilted."""
+    r = rot_z(yaw) @ DOWN
+    if tilt and tilt_axis is not None:
+        r = rot_axis(tilt_axis, tilt) @ r
+    return r
+
+
+def finger_axis(yaw: float) -> np.ndarray:
+    """World direction along which the fingers close for a given grasp yaw."""
+    return rot_z(yaw) @ np.array([0.0, 1.0, 0.0])
+
+
+class Servo:
+    """Turns a target pose into one OSC_POSE action from the measured pose (PI on position, P on rotation)."""
+
+    def __init__(self, gain: float = 1.6, integral_gain: float = 0.08, rot_gain: float = 1.2, max_speed: float = 1.0) -> None:
+        self.gain, self.integral_gain, self.rot_gain, self.max_speed = gain, integral_gain, rot_gain, max_speed
+        self._integral = np.zeros(3)
+
+    def reset_integral(self) -> None:
+        self._integral = np.zeros(3)
+
+    def action(self, pos_err: np.ndarray, rot_err: np.ndarray, gripper: float, speed: float | None = None) -> np.ndarray:
+        limit = self.max_speed if speed is None else speed
+        self._integral = np.clip(self._integral + pos_err / POS_SCALE, -8, 8)
+        move = self.gain * pos_err / POS_SCALE + self.integral_gain * self._integral
+        norm = np.linalg.norm(move)
+        if norm > limit:
+            move = move * (limit / norm)
+        turn = np.clip(self.rot_gain * rot_err / ROT_SCALE, -1.0, 1.0)
+        return np.concatenate([move, turn, [gripper]])

@@ -1,0 +1,173 @@
+"""Scripted experts built from a task's BDDL goal and the simulator state, with quality knobs.
+
+The goal's predicates become an ordered list of skills (pick-and-place for On/In, articulated skills
+for Open/Close/TurnOn/TurnOff); knobs drawn per episode make the execution sloppy in controlled,
+recorded ways while mostly still succeeding, which is what elegance labels need.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any
+
+import numpy as np
+
+from base_suites.env import LiberoEnv
+from base_suites.errors import UserInputError, unknown_choice
+from base_suites.experts import articulated, skills
+from base_suites.experts.control import OPEN
+from base_suites.experts.skills import SkillContext
+
+EXPERT_VERSION = "scripted-1"
+KNOBS = ("collide", "drop", "misplace", "tilt", "wrong_order", "jerky", "regrasp")
+# "mixed": every knob possible, most episodes still clean in all but one or two respects.
+MIXED_RATES = {"collide": 0.2, "drop": 0.2, "misplace": 0.15, "tilt": 0.2, "wrong_order": 0.15, "jerky": 0.15, "regrasp": 0.15}
+QUALITY_PRESETS = {"clean": {k: 0.0 for k in KNOBS}, "mixed": MIXED_RATES}
+
+
+def knob_rates(quality: str | Mapping[str, float]) -> dict[str, float]:
+    """Resolve a quality preset name or a knob -> probability mapping (validated)."""
+    if isinstance(quality, str):
+        if quality not in QUALITY_PRESETS:
+            raise unknown_choice("quality", quality, list(QUALITY_PRESETS) + ["knob=prob,..."])
+        return dict(QUALITY_PRESETS[quality])
+    rates = {k: 0.0 for k in KNOBS}
+    for knob, p in quality.items():
+        if knob not in KNOBS:
+            raise unknown_choice("quality knob", knob, KNOBS)
+        if not 0.0 <= float(p) <= 1.0:
+            raise UserInputError(f"quality knob {knob!r}: probability {p} is outside [0, 1]")
+        rates[knob] = float(p)
+    return rates
+
+
+def parse_quality(text: str) -> str | dict[str, float]:
+    """CLI form: a preset name, or `knob=prob,knob=prob`."""
+    if "=" not in text:
+        return text
+    out = {}
+    for item in text.split(","):
+        knob, _, prob = item.partition("=")
+        try:
+            out[knob.strip()] = float(prob)
+        except ValueError:
+            raise UserInputError(f"quality item {item!r}: expected knob=probability, e.g. drop=0.3") from None
+    return out
+
+
+Skill = Callable[[SkillContext], skills.Actions]
+
+
+def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[str, Skill]]:
+    """Order the goal's predicates into skills: switch on first, open containers before filling them,
+    close containers after filling them."""
+    steps: list[tuple[int, str, Skill]] = []
+    opened_for = set()
+    for pred in goal:
+        kind, *args = pred
+        if kind in ("on", "in"):
+            obj, target = args
+            container = articulated.container_of(view, target)
+            if kind == "in" and container is not None and not view.predicate(("open", target)):
+                if target not in opened_for:
+                    steps.append((1, f"open({target})", lambda c, t=target: articulated.open_(c, t)))
+                    opened_for.add(target)
+            steps.append((2, f"{kind}({obj},{target})", lambda c, o=obj, t=target: _pick_place(c, o, t)))
+        elif kind == "open":
+            steps.append((1, f"open({args[0]})", lambda c, t=args[0]: articulated.open_(c, t)))
+        elif kind == "close":
+            steps.append((3, f"close({args[0]})", lambda c, t=args[0]: articulated.close(c, t)))
+        elif kind in ("turnon", "turnoff"):
+            steps.append((0, f"{kind}({args[0]})", lambda c, t=args[0], k=kind: articulated.turn(c, t, on=k == "turnon")))
+        else:
+            raise UserInputError(f"goal predicate {kind!r} has no expert skill")
+    steps.sort(key=lambda s: s[0])
+    return [(name, fn) for _, name, fn in steps]
+
+
+def _pick_place(ctx: SkillContext, obj: str, target: str) -> skills.Actions:
+    ok = yield from skills.pick(ctx, obj)
+    if not ok:
+        return False
+    return (yield from skills.place(ctx, obj, target))
+
+
+class ScriptedExpert:
+    """A privileged policy for one `LiberoEnv`: call `reset()` after `env.reset()`, then `expert(obs)`."""
+
+    def __init__(self, env: LiberoEnv, quality: str | Mapping[str, float] = "clean", seed: int = 0) -> None:
+        self.env = env
+        self.rates = knob_rates(quality)
+        self.seed = int(seed)
+        self._episode = 0
+        self.knobs: dict[str, bool] = {}
+        self.events: list[str] = []
+        self._actions: Iterator[np.ndarray] | None = None
+
+    def reset(self, metadata: Mapping[str, Any] | None = None, *, episode: int | None = None) -> None:
+        """Start an episode (after `env.reset()`). Knobs are drawn from (seed, episode), so a resumed
+        collection that passes the episode number reproduces the same episodes."""
+        if episode is not None:
+            self._episode = int(episode)
+        rng = np.random.default_rng([self.seed, self._episode])
+        self._episode += 1
+        self.knobs = {k: bool(rng.random() < p) for k, p in self.rates.items()}
+        self._rng = rng
+        self._ctx = SkillContext(self.env.sim, rng, {k for k, on in self.knobs.items() if on})
+        self.events = self._ctx.events
+        self._actions = self._run()
+
+    def _run(self) -> Iterator[np.ndarray]:
+        ctx = self._ctx
+        plan = plan_skills(self.env.task.goal, self.env.sim)
+        if "collide" in ctx.knobs:
+            victim = self._distractor()
+            if victim is not None:
+                yield from skills.knock(ctx, victim)
+        if "wrong_order" in ctx.knobs:
+            if len(plan) > 1:
+                plan = plan[::-1]
+                ctx.events.append("wrong_order:reversed")
+            else:
+                plan = plan + [("undo", lambda c: self._undo(c))] + plan
+                ctx.events.append("wrong_order:undo")
+        for _, skill in plan:
+            yield from skill(ctx)
+        while True:
+            yield np.array([0, 0, 0, 0, 0, 0, OPEN])
+
+    def _undo(self, ctx: SkillContext) -> skills.Actions:
+        """Take the just-placed object back out of its goal and put it down nearby."""
+        kind, *args = self.env.task.goal[0]
+        if kind in ("on", "in"):
+            obj = args[0]
+            ok = yield from skills.pick(ctx, obj)
+            if ok:
+                yield from ctx.goto(ctx.view.eef_position() + np.array([0, 0, 0.06]), ctx.view.eef_rotation(), 1.0, tol=0.02, max_steps=30)
+                yield from ctx.hold(OPEN, 10)
+            return ok
+        if kind == "open":
+            return (yield from articulated.close(ctx, args[0]))
+        if kind == "close":
+            return (yield from articulated.open_(ctx, args[0]))
+        return (yield from articulated.turn(ctx, args[0], on=kind != "turnon"))
+
+    def _distractor(self) -> str | None:
+        named = {a for p in self.env.task.goal for a in p[1:]}
+        view = self.env.sim
+        candidates = [o for o in view.objects if o not in named]
+        if not candidates:
+            return None
+        eef = view.eef_position()
+        return min(candidates, key=lambda o: np.linalg.norm(view.position(o)[:2] - eef[:2]))
+
+    def __call__(self, obs: Mapping[str, Any] | None = None) -> np.ndarray:
+        if self._actions is None:
+            self.reset()
+        action = next(self._actions)
+        if self.knobs.get("jerky"):
+            noise = self._rng.normal(0, 0.35, size=6)
+            if self._rng.random() < 0.1:
+                noise += self._rng.choice([-1.0, 1.0], size=6)
+            action = action.copy()
+            action[:6] += noise
+        return np.clip(action, -1.0, 1.0)

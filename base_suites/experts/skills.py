@@ -1,0 +1,161 @@
+"""Motion primitives as generators of OSC_POSE actions, read off the simulator at every step.
+
+Each skill is a generator that yields one action per env step and returns whether it reached its aim,
+so skills compose with `yield from` into task plans. Quality knobs (collide, drop, misplace, tilt,
+jerky, regrasp) are applied inside the skills where the behaviour belongs.
+"""
+from __future__ import annotations
+
+from collections.abc import Generator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, rotation_error
+from base_suites.experts.geometry import carry_height, choose_grasp, shape_of
+from base_suites.sim_view import SimView
+
+Actions = Generator[np.ndarray, None, bool]
+
+
+@dataclass
+class SkillContext:
+    """What every skill reads and writes: the sim view, the servo, the episode's knobs and RNG."""
+
+    view: SimView
+    rng: np.random.Generator
+    knobs: set[str] = field(default_factory=set)
+    servo: Servo = field(default_factory=Servo)
+    events: list[str] = field(default_factory=list)
+
+    def goto(self, pos, rot, grip: float, tol: float = 0.008, rot_tol: float = 0.06, max_steps: int = 120, speed: float = 1.0) -> Actions:
+        """Servo the grip point to `pos` with orientation `rot`; True once within tolerance."""
+        self.servo.reset_integral()
+        pos = np.asarray(pos, dtype=float)
+        for _ in range(max_steps):
+            pos_err = pos - self.view.eef_position()
+            rot_err = rotation_error(rot, self.view.eef_rotation())
+            if np.linalg.norm(pos_err) < tol and np.linalg.norm(rot_err) < rot_tol:
+                return True
+            yield self.servo.action(pos_err, rot_err, grip, speed)
+        return False
+
+    def hold(self, grip: float, steps: int, rot=None) -> Actions:
+        """Stay in place (orientation `rot` or current) while commanding the gripper."""
+        target = self.view.eef_position()
+        rot = self.view.eef_rotation() if rot is None else rot
+        self.servo.reset_integral()
+        for _ in range(steps):
+            yield self.servo.action(target - self.view.eef_position(), rotation_error(rot, self.view.eef_rotation()), grip)
+        return True
+
+
+def _above(p: np.ndarray, z: float) -> np.ndarray:
+    return np.array([p[0], p[1], z])
+
+
+def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
+    """Top-down grasp of `obj` and lift to carrying height; retries with a fresh grasp choice."""
+    view = ctx.view
+    for attempt in range(attempts):
+        grasp = choose_grasp(view, obj)
+        rot = grasp_rotation(grasp.yaw)
+        hover = max(view.eef_position()[2], grasp.position[2] + 0.12)
+        target = grasp.position.copy()
+        if "regrasp" in ctx.knobs and attempt == 0:
+            offset = finger_axis(grasp.yaw + np.pi / 2) * ctx.rng.uniform(0.03, 0.045)
+            target = target + offset
+            ctx.events.append("regrasp:miss")
+        yield from ctx.goto(_above(view.eef_position(), hover), rot, OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
+        yield from ctx.goto(_above(target, hover), rot, OPEN, tol=0.012, max_steps=120)
+        yield from ctx.goto(target, rot, OPEN, tol=0.006, max_steps=80, speed=0.6)
+        yield from ctx.hold(CLOSE, 12, rot)
+        lift = _above(target, grasp.position[2] + 0.10)
+        yield from ctx.goto(lift, rot, CLOSE, tol=0.02, max_steps=40)
+        if view.held_object() == obj:
+            return True
+        yield from ctx.hold(OPEN, 6, rot)
+        ctx.events.append(f"pick:retry{attempt + 1}")
+    return False
+
+
+def _target_xy(view: SimView, target: str) -> np.ndarray:
+    if target in view.regions:
+        return view.region(target).position[:2]
+    return view.position(target)[:2]
+
+
+def _support_entity(view: SimView, target: str) -> str | None:
+    if target in view.regions:
+        return view.region(target).parent
+    return target
+
+
+def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
+    # Tilt about the horizontal axis across the fingers: the held object swings out of upright.
+    axis = np.cross(finger_axis(yaw), [0.0, 0.0, 1.0])
+    return grasp_rotation(yaw, axis, angle)
+
+
+def place(ctx: SkillContext, obj: str, target: str, release_clearance: float = 0.012) -> Actions:
+    """Carry the held `obj` above `target` (a region or an entity) and set it down on contact."""
+    view = ctx.view
+    rot = view.eef_rotation()
+    yaw = float(np.arctan2(rot[1, 0], rot[0, 0]) - np.pi / 2)
+    upright = grasp_rotation(yaw)
+    goal_xy = _target_xy(view, target)
+    if "misplace" in ctx.knobs:
+        angle = ctx.rng.uniform(0, 2 * np.pi)
+        goal_xy = goal_xy + ctx.rng.uniform(0.05, 0.08) * np.array([np.cos(angle), np.sin(angle)])
+        ctx.events.append("misplace")
+    z_carry = carry_height(view, obj, goal_xy)
+    carry_rot = upright
+    if "tilt" in ctx.knobs:
+        carry_rot = _tilt_rotation(ctx, yaw, np.deg2rad(ctx.rng.uniform(40, 60)))
+        ctx.events.append("tilt")
+    yield from ctx.goto(_above(view.eef_position(), z_carry), carry_rot, CLOSE, tol=0.02, rot_tol=0.1, max_steps=60)
+    # Aim the *object* at the goal: correct for where it sits in the hand.
+    for _ in range(3):
+        offset = view.position(obj)[:2] - view.eef_position()[:2]
+        yield from ctx.goto(np.array([*(goal_xy - offset), z_carry]), carry_rot, CLOSE, tol=0.01, rot_tol=0.1, max_steps=100)
+        if np.linalg.norm(view.position(obj)[:2] - goal_xy) < 0.012:
+            break
+    if carry_rot is not upright:
+        yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
+    support = _support_entity(view, target)
+    if "drop" in ctx.knobs:
+        ctx.events.append("drop")
+        yield from ctx.hold(OPEN, 10)
+        yield from ctx.hold(OPEN, 10)
+        return True
+    # Descend slowly until the held object touches its support (or anything but the robot).
+    ctx.servo.reset_integral()
+    for _ in range(120):
+        touching = [c.other(obj) for c in view.contacts() if c.involves(obj)]
+        if any(e not in ("gripper", "robot") for e in touching):
+            break
+        eef = view.eef_position()
+        yield ctx.servo.action(np.array([*(goal_xy - (view.position(obj)[:2] - eef[:2]) - eef[:2]), -0.02]), rotation_error(upright, view.eef_rotation()), CLOSE, speed=0.35)
+    yield from ctx.hold(OPEN, 10, upright)
+    up = view.eef_position() + np.array([0, 0, 0.10])
+    yield from ctx.goto(up, upright, OPEN, tol=0.02, max_steps=30)
+    return support is not None
+
+
+def knock(ctx: SkillContext, victim: str) -> Actions:
+    """Sweep the closed hand through a distractor at mid height (the `collide` knob)."""
+    view = ctx.view
+    shape = shape_of(view, victim)
+    z = shape.bottom + max(0.6 * shape.height, 0.02)
+    centre = shape.centre
+    direction = centre[:2] - view.eef_position()[:2]
+    direction = direction / max(np.linalg.norm(direction), 1e-6)
+    start = np.array([*(centre[:2] - 0.10 * direction), z])
+    end = np.array([*(centre[:2] + 0.06 * direction), z])
+    rot = grasp_rotation(0.0)
+    ctx.events.append(f"collide:{victim}")
+    yield from ctx.goto(_above(start, max(view.eef_position()[2], shape.top + 0.08)), rot, CLOSE, tol=0.02, max_steps=80)
+    yield from ctx.goto(start, rot, CLOSE, tol=0.015, max_steps=60)
+    yield from ctx.goto(end, rot, CLOSE, tol=0.02, max_steps=40)
+    yield from ctx.goto(_above(end, shape.top + 0.10), rot, OPEN, tol=0.03, max_steps=40)
+    return True
