@@ -36,7 +36,8 @@ class TaskFeatureEncoder:
     def check_env(self, metadata: Mapping[str, Any], model_path: str = "model") -> str:
         """Return the env's task key, refusing an unknown task or a different state layout."""
         key = task_key(metadata["suite"], metadata["task_index"])
-        self.task_id(key)
+        if key not in self.layouts:
+            raise UserInputError(f"{model_path}: env task {key!r} is not among the tasks the model was trained on: {', '.join(self.tasks)}")
         got = [[str(n), int(s)] for n, s in metadata["state_layout"]]
         if got != self.layouts[key]:
             raise UserInputError(

@@ -1,0 +1,35 @@
+"""Base policies: the `Policy` protocol, adapters for callables / LeRobot / TorchRL, and the BC-GMM policy.
+
+The BC names load torch on first use (PEP 562 lazy attributes), so importing the protocol and adapters
+stays instant for commands that never touch a network.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+from elegant.policies.adapters import (
+    TORCHRL_LIBERO_STATE, CallablePolicy, LayoutSlice, LeRobotPolicy, PolicyAdapter, StateFn, TorchRLPolicy, as_policy,
+    lerobot_libero_state,
+)
+from elegant.policies.protocol import ACTION_DIM, GaussianCandidates, Policy, as_action
+
+_LAZY = {
+    "BCPolicy": "elegant.policies.bc_policy",
+    "load_policy": "elegant.policies.bc_policy",
+    "train_policy": "elegant.policies.bc_train",
+}
+
+__all__ = [
+    "ACTION_DIM", "BCPolicy", "CallablePolicy", "GaussianCandidates", "LayoutSlice", "LeRobotPolicy", "Policy",
+    "PolicyAdapter", "StateFn", "TORCHRL_LIBERO_STATE", "TorchRLPolicy", "as_action", "as_policy", "lerobot_libero_state",
+    "load_policy", "train_policy",
+]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,100 @@
+"""The trained BC policy on disk: `model.pt` (a plain state_dict) and `config.json` (everything else).
+
+config.json holds the network shape, the input definition (task encoder with every task's state layout,
+per-task normalisation, history length), training facts and library versions, plus the SHA-256 of
+model.pt so that a pair written by different runs (an interrupted overwrite) is refused instead of
+producing nonsense actions. Both files are written atomically.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import platform
+from importlib import metadata as importlib_metadata
+from typing import Any
+
+import numpy as np
+import torch
+
+from base_suites.errors import UserInputError
+from elegant.policies.bc_features import BCFeatures
+from elegant.policies.bc_model import BCNet
+
+ARTIFACT_FORMAT = "libero-elegant-bc/1"
+MODEL_FILE = "model.pt"
+CONFIG_FILE = "config.json"
+
+
+def atomic_write_bytes(path: str, payload: bytes) -> None:
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "wb") as fh:
+        fh.write(payload)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def torch_bytes(obj: Any) -> bytes:
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    return buffer.getvalue()
+
+
+def _versions() -> dict[str, str]:
+    try:
+        project = importlib_metadata.version("libero-elegant")
+    except importlib_metadata.PackageNotFoundError:
+        project = "unknown"
+    return {"libero-elegant": project, "torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
+
+
+def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, Any], training: dict[str, Any]) -> None:
+    """Publish the final policy in `out` (model.pt first; config.json, which vouches for it, last)."""
+    payload = torch_bytes(net.state_dict())
+    atomic_write_bytes(os.path.join(out, MODEL_FILE), payload)
+    config = {
+        "format": ARTIFACT_FORMAT,
+        "model": model,
+        "features": features.to_dict(),
+        "training": training,
+        "versions": _versions(),
+        "model_sha256": hashlib.sha256(payload).hexdigest(),
+    }
+    atomic_write_bytes(os.path.join(out, CONFIG_FILE), json.dumps(config, indent=1).encode())
+
+
+def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
+    """Load a policy directory, refusing a missing, foreign, corrupt or inconsistent one in one line."""
+    if not os.path.isdir(path):
+        raise UserInputError(f"{path}: no such policy directory (expected the output of train_policy)")
+    config_path, model_path = os.path.join(path, CONFIG_FILE), os.path.join(path, MODEL_FILE)
+    for file in (config_path, model_path):
+        if not os.path.isfile(file):
+            raise UserInputError(f"{path}: missing {os.path.basename(file)}; not a trained policy (or training has not finished)")
+    try:
+        with open(config_path) as fh:
+            config = json.load(fh)
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise UserInputError(f"{config_path}: not valid JSON") from None
+    if not isinstance(config, dict) or config.get("format") != ARTIFACT_FORMAT:
+        got = config.get("format") if isinstance(config, dict) else None
+        raise UserInputError(f"{config_path}: field 'format' is {got!r}, expected {ARTIFACT_FORMAT!r}")
+    with open(model_path, "rb") as fh:
+        payload = fh.read()
+    if hashlib.sha256(payload).hexdigest() != config.get("model_sha256"):
+        raise UserInputError(f"{model_path}: does not match config.json's model_sha256 (corrupt or from another run); retrain")
+    try:
+        features = BCFeatures.from_dict(config["features"])
+        spec = config["model"]
+        net = BCNet(spec["input_dim"], hidden=spec["hidden"], action_dim=spec["action_dim"], modes=spec["modes"], min_std=spec["min_std"])
+        net.load_state_dict(torch.load(io.BytesIO(payload), weights_only=True))
+    except KeyError as exc:
+        raise UserInputError(f"{config_path}: missing field {exc.args[0]!r}") from None
+    except (RuntimeError, TypeError, ValueError) as exc:
+        raise UserInputError(f"{model_path}: cannot be loaded into the network config.json describes ({str(exc).splitlines()[0]})") from None
+    if features.input_dim != spec["input_dim"]:
+        raise UserInputError(f"{config_path}: model.input_dim {spec['input_dim']} disagrees with the features ({features.input_dim})")
+    net.eval()
+    return net, features, config

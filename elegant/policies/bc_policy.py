@@ -1,0 +1,101 @@
+"""The trained BC-GMM policy at run time: deterministic actions, GMM candidates, per-episode history.
+
+The action is the mean of the mixture's most likely component (LIBERO evaluates its GMM policies with
+little or no noise), so evaluation is deterministic; `sample` draws from the full mixture with a seeded
+generator, which is what JITI asks for at critical moments. Plain torch modules under
+`torch.inference_mode` keep one decision well under a millisecond on one CPU thread.
+"""
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+
+from base_suites.errors import UserInputError
+from elegant.policies.bc_artifact import read_artifact
+from elegant.policies.bc_features import BCFeatures
+from elegant.policies.bc_model import BCNet, gmm_mode, gmm_sample
+from elegant.policies.protocol import Observation, check_count
+
+
+class BCPolicy:
+    """A `Policy` over the env's low-dimensional state (see module docstring).
+
+    Call `reset(env.metadata)` at the start of each episode: it clears the history, selects the task and
+    refuses an env whose observation layout differs from the training data. A single-task policy also
+    works without metadata, checking only the state width.
+    """
+
+    def __init__(self, net: BCNet, features: BCFeatures, *, path: str = "policy", seed: int = 0, config: Mapping[str, Any] | None = None) -> None:
+        self.net = net.eval()
+        self.features = features
+        self.path = path
+        self.config = dict(config or {})
+        self.generator = torch.Generator()
+        self._window: deque[np.ndarray] = deque(maxlen=features.history)
+        self._last_state: np.ndarray | None = None
+        self.task: str | None = None
+        self.reset(seed=seed)
+
+    @property
+    def tasks(self) -> list[str]:
+        return list(self.features.encoder.tasks)
+
+    def reset(self, metadata: Mapping[str, Any] | None = None, *, seed: int | None = None) -> None:
+        self._window.clear()
+        self._last_state = None
+        if metadata is not None:
+            self.task = self.features.encoder.check_env(metadata, self.path)
+        elif len(self.tasks) == 1:
+            self.task = self.tasks[0]
+        else:
+            self.task = None
+        if seed is not None:
+            self.generator.manual_seed(int(seed))
+
+    def _state(self, obs: Observation) -> np.ndarray:
+        if "state" not in obs:
+            raise UserInputError(f"{self.path}: the observation has no 'state' entry; make the env with obs='lowdim' or 'both'")
+        return np.asarray(obs["state"], dtype=np.float64)
+
+    def _push(self, state: np.ndarray) -> None:
+        if self.task is None:
+            raise UserInputError(f"{self.path}: multi-task policy ({len(self.tasks)} tasks) needs reset(env.metadata) before acting")
+        width = self.features.stats[self.task][0].shape[0]
+        if state.shape != (width,):
+            raise UserInputError(f"{self.path}: observation 'state' has shape {state.shape}; task {self.task} expects ({width},)")
+        encoded = self.features.encode(state, self.task)
+        if not self._window:
+            self._window.extend([encoded] * self.features.history)  # episode start: repeat the first state
+        else:
+            self._window.append(encoded)
+        self._last_state = state.copy()
+
+    def _distribution(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        window = torch.from_numpy(np.stack(self._window)).unsqueeze(0)
+        return self.net(self.features.flatten_window(window))
+
+    def __call__(self, obs: Observation) -> np.ndarray:
+        self._push(self._state(obs))
+        with torch.inference_mode():
+            logits, means, _ = self._distribution()
+            return gmm_mode(logits, means)[0].double().numpy()
+
+    def sample(self, obs: Observation, n: int) -> np.ndarray:
+        """n actions drawn from the mixture for this step; does not step the history again right after `__call__(obs)`."""
+        n = check_count(n)
+        state = self._state(obs)
+        if self._last_state is None or not np.array_equal(self._last_state, state):
+            self._push(state)
+        with torch.inference_mode():
+            logits, means, stds = self._distribution()
+            return gmm_sample(logits, means, stds, n, self.generator).double().numpy()
+
+
+def load_policy(path: str, *, seed: int = 0) -> BCPolicy:
+    """Load a directory written by `train_policy` (refused in one line if missing, corrupt or foreign)."""
+    net, features, config = read_artifact(str(path))
+    return BCPolicy(net, features, path=str(path), seed=seed, config=config)

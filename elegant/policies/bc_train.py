@@ -1,0 +1,198 @@
+"""Behaviour cloning of the BC-GMM base policy from demonstration files.
+
+Training is resumable to the same result: after every epoch a checkpoint (`out/checkpoint.pt`, written
+atomically) holds the network, Adam and cosine-schedule state, the shuffling generator and the loss
+history. The network is initialised under its own seed inside a forked RNG, and shuffling draws only
+from that generator, so a resumed run replays exactly what the uninterrupted run would have done. A
+checkpoint is only resumed with the same data and hyper-parameters; anything else is refused.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from base_suites.errors import UserInputError
+from elegant.policies.bc_artifact import atomic_write_bytes, torch_bytes, write_artifact
+from elegant.policies.bc_data import DemoSet, load_demos
+from elegant.policies.bc_features import BCFeatures
+from elegant.policies.bc_model import BCNet
+from elegant.policies.protocol import ACTION_DIM
+
+CHECKPOINT_FILE = "checkpoint.pt"
+
+
+@dataclass(frozen=True)
+class BCConfig:
+    """Hyper-parameters of one training run (compared field by field when resuming)."""
+
+    epochs: int
+    seed: int = 0
+    history: int = 10
+    batch_size: int = 256
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    hidden: tuple[int, ...] = (256, 256)
+    modes: int = 5
+    min_std: float = 1e-4
+    obs_min_std: float = 1e-2
+    grad_clip: float = 100.0
+
+    def validate(self) -> None:
+        positive = {"epochs": self.epochs, "history": self.history, "batch_size": self.batch_size, "modes": self.modes}
+        for name, value in positive.items():
+            if int(value) != value or value < 1:
+                raise UserInputError(f"train_policy: {name} must be a positive integer, got {value!r}")
+        if not self.hidden or any(int(h) != h or h < 1 for h in self.hidden):
+            raise UserInputError(f"train_policy: hidden must be positive layer widths, got {self.hidden!r}")
+        for name in ("lr", "weight_decay", "grad_clip"):
+            if not getattr(self, name) >= 0:
+                raise UserInputError(f"train_policy: {name} must be >= 0, got {getattr(self, name)!r}")
+        for name in ("min_std", "obs_min_std"):
+            if not getattr(self, name) > 0:
+                raise UserInputError(f"train_policy: {name} must be > 0, got {getattr(self, name)!r}")
+
+
+class _Windows:
+    """All encoded states in one tensor; a batch's history windows are gathered by index."""
+
+    def __init__(self, data: DemoSet, features: BCFeatures) -> None:
+        encoded, starts = [], []
+        offset = 0
+        for episode in data.episodes:
+            encoded.append(features.encode(episode.states, episode.task))
+            starts.append(np.full(len(episode.states), offset))
+            offset += len(episode.states)
+        self.encoded = torch.from_numpy(np.concatenate(encoded))
+        self.starts = torch.from_numpy(np.concatenate(starts))
+        self.actions = torch.from_numpy(np.concatenate([e.actions for e in data.episodes]))
+        self.back = torch.arange(features.history - 1, -1, -1)
+        self.features = features
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def batch(self, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        rows = torch.maximum(index[:, None] - self.back, self.starts[index][:, None])
+        return self.features.flatten_window(self.encoded[rows]), self.actions[index]
+
+
+def _save_checkpoint(path: str, state: dict[str, Any]) -> None:
+    atomic_write_bytes(path, torch_bytes(state))
+
+
+def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
+    try:
+        state = torch.load(path, weights_only=True)
+    except Exception as exc:  # a truncated or foreign file surfaces as many exception types
+        raise UserInputError(f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume") from None
+    old = state.get("fingerprint", {}) if isinstance(state, dict) else {}
+    for key, value in fingerprint.items():
+        if old.get(key) != value:
+            raise UserInputError(f"{path}: cannot resume, field {key!r} was {old.get(key)!r} and is now {value!r}")
+    return state
+
+
+def train_policy(
+    paths: Sequence[str],
+    out: str,
+    *,
+    epochs: int,
+    seed: int = 0,
+    resume: bool = False,
+    history: int = 10,
+    batch_size: int = 256,
+    lr: float = 1e-3,
+    weight_decay: float = 0.0,
+    hidden: Sequence[int] = (256, 256),
+    modes: int = 5,
+    min_std: float = 1e-4,
+    obs_min_std: float = 1e-2,
+    grad_clip: float = 100.0,
+    progress: bool = True,
+    on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
+) -> dict[str, Any]:
+    """Train a BC-GMM policy on the demos in `paths` and write it to the directory `out`.
+
+    Returns a dict: out, epochs, resumed_from_epoch, loss_history (mean training NLL per epoch), final_nll,
+    num_demos, num_samples, tasks, seconds. `on_epoch_end` receives {"epoch", "nll"} after each epoch's
+    checkpoint is on disk (for logging; an exception raised there stops training like a crash would).
+    """
+    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip)
+    cfg.validate()
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise UserInputError(f"{out}: exists and is not a directory")
+    os.makedirs(out, exist_ok=True)
+    started = time.perf_counter()
+    data = load_demos(paths)
+    features = BCFeatures.fit(data, history=cfg.history, min_std=cfg.obs_min_std)
+    windows = _Windows(data, features)
+    model_spec = {"input_dim": features.input_dim, "hidden": list(cfg.hidden), "action_dim": ACTION_DIM, "modes": cfg.modes, "min_std": cfg.min_std}
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(cfg.seed)
+        net = BCNet(features.input_dim, hidden=cfg.hidden, modes=cfg.modes, min_std=cfg.min_std)
+    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    steps_per_epoch = math.ceil(len(windows) / cfg.batch_size)
+    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=cfg.epochs * steps_per_epoch)
+    generator = torch.Generator().manual_seed(cfg.seed)
+    losses: list[float] = []
+
+    checkpoint = os.path.join(out, CHECKPOINT_FILE)
+    fingerprint = {"config": asdict(cfg), "data": data.files}
+    start_epoch = 0
+    if resume and os.path.exists(checkpoint):
+        state = _load_checkpoint(checkpoint, fingerprint)
+        net.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+        scheduler.load_state_dict(state["scheduler"])
+        generator.set_state(state["generator"])
+        losses, start_epoch = list(state["losses"]), int(state["epoch"])
+
+    bar = tqdm(total=cfg.epochs * steps_per_epoch, initial=start_epoch * steps_per_epoch, disable=not progress, desc="train-policy", unit="batch")
+    net.train()
+    for epoch in range(start_epoch, cfg.epochs):
+        total = 0.0
+        for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
+            x, actions = windows.batch(index)
+            loss = net.nll(x, actions).mean()
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            if cfg.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+            optimizer.step()
+            scheduler.step()
+            total += loss.item() * len(index)
+            bar.update(1)
+        losses.append(total / len(windows))
+        bar.set_postfix(epoch=epoch + 1, nll=f"{losses[-1]:.3f}")
+        _save_checkpoint(checkpoint, {
+            "epoch": epoch + 1, "model": net.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
+            "generator": generator.get_state(), "losses": losses, "fingerprint": fingerprint,
+        })
+        if on_epoch_end is not None:
+            on_epoch_end({"epoch": epoch + 1, "nll": losses[-1]})
+    bar.close()
+    net.eval()
+
+    result = {
+        "out": out,
+        "epochs": cfg.epochs,
+        "resumed_from_epoch": start_epoch,
+        "loss_history": losses,
+        "final_nll": losses[-1],
+        "num_demos": len(data.episodes),
+        "num_samples": len(windows),
+        "tasks": list(features.encoder.tasks),
+        "seconds": time.perf_counter() - started,
+    }
+    training = {"config": asdict(cfg), "data": data.files, "loss_history": losses, "num_samples": len(windows)}
+    write_artifact(out, net, features, model_spec, training)
+    return result

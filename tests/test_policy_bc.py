@@ -1,0 +1,210 @@
+"""BC-GMM policy: training on a tiny synthetic dataset, resume, the saved artifact and its refusals."""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from annotations import Demo, DemoWriter
+from base_suites.errors import UserInputError
+from elegant.policies import BCPolicy, Policy, as_policy, load_policy, train_policy
+
+torch.set_num_threads(1)
+
+LAYOUTS = {
+    "libero_object/0": [["robot0_eef_pos", 3], ["robot0_gripper_qpos", 2], ["bowl_1/pos", 3]],
+    "libero_object/1": [["robot0_eef_pos", 3], ["robot0_gripper_qpos", 2]],
+}
+GOALS = {"libero_object/0": np.array([0.3, -0.2, 0.1]), "libero_object/1": np.array([-0.3, 0.2, 0.3])}
+SMALL = {"history": 2, "batch_size": 32, "hidden": (64, 64), "modes": 3, "progress": False}
+
+
+def expert(state: np.ndarray, key: str) -> np.ndarray:
+    """Move towards the task's goal; close the gripper once above 0.2 m: a function of state and task."""
+    action = np.zeros(7)
+    action[:3] = np.tanh(4.0 * (GOALS[key] - state[:3]))
+    action[6] = 1.0 if state[2] > 0.2 else -1.0
+    return action
+
+
+def write_demos(path, *, demos_per_task: int = 5, steps: int = 30, seed: int = 0, layouts=LAYOUTS) -> str:
+    rng = np.random.default_rng(seed)
+    writer = DemoWriter(str(path), {"env_args": {}, "problem_info": {}})
+    for key, layout in layouts.items():
+        suite, index = key.split("/")
+        width = sum(s for _, s in layout)
+        for d in range(demos_per_task):
+            state = rng.uniform(-0.4, 0.4, size=width)
+            obs, actions = [], []
+            for _ in range(steps):
+                obs.append(state.copy())
+                actions.append(expert(state, key))
+                state = state.copy()
+                state[:3] += 0.05 * actions[-1][:3] + rng.normal(0, 0.005, 3)
+            obs, actions = np.array(obs), np.array(actions)
+            attrs = {"suite": suite, "task_index": int(index), "task_name": key, "success": True}
+            demo = Demo(f"demo_{d}", actions, np.zeros((steps, 3)), obs, np.roll(obs, -1, 0), np.zeros(steps), np.eye(steps)[-1], attrs)
+            writer.append(demo, state_layout=layout)
+    return writer.finish()
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory) -> str:
+    return write_demos(tmp_path_factory.mktemp("demos") / "demos.hdf5")
+
+
+def metadata(key: str, layout=None) -> dict:
+    suite, index = key.split("/")
+    return {"suite": suite, "task_index": int(index), "instruction": key, "state_layout": layout or LAYOUTS[key]}
+
+
+def fit_error(policy: BCPolicy, seed: int = 99) -> float:
+    """Mean squared action error of the policy on fresh expert episodes of both tasks."""
+    rng = np.random.default_rng(seed)
+    errors = []
+    for key, layout in LAYOUTS.items():
+        for _ in range(3):
+            policy.reset(metadata(key))
+            state = rng.uniform(-0.4, 0.4, size=sum(s for _, s in layout))
+            for _ in range(30):
+                target = expert(state, key)
+                errors.append(np.mean((policy({"state": state}) - target) ** 2))
+                state = state.copy()
+                state[:3] += 0.05 * target[:3]
+    return float(np.mean(errors))
+
+
+def test_training_fits_the_expert_far_better_than_initialisation(demos, tmp_path):
+    trained = train_policy([demos], str(tmp_path / "bc"), epochs=40, lr=1e-2, seed=0, **SMALL)
+    untrained = train_policy([demos], str(tmp_path / "init"), epochs=1, lr=0.0, seed=0, **SMALL)
+    assert trained["tasks"] == sorted(LAYOUTS) and trained["num_samples"] == 2 * 5 * 30
+    assert trained["loss_history"][-1] < trained["loss_history"][0] - 3.0
+    before, after = fit_error(load_policy(str(tmp_path / "init"))), fit_error(load_policy(str(tmp_path / "bc")))
+    assert after < 0.25 * before and after < 0.05, (before, after)
+
+
+def test_resume_after_a_crash_equals_an_uninterrupted_run(demos, tmp_path):
+    full = train_policy([demos], str(tmp_path / "full"), epochs=3, seed=5, **SMALL)
+
+    def crash(info):
+        if info["epoch"] == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_policy([demos], str(tmp_path / "cut"), epochs=3, seed=5, on_epoch_end=crash, **SMALL)
+    assert not os.path.exists(tmp_path / "cut" / "model.pt")
+    resumed = train_policy([demos], str(tmp_path / "cut"), epochs=3, seed=5, resume=True, **SMALL)
+    assert resumed["resumed_from_epoch"] == 2
+    assert resumed["loss_history"] == full["loss_history"]
+    a = torch.load(tmp_path / "full" / "model.pt", weights_only=True)
+    b = torch.load(tmp_path / "cut" / "model.pt", weights_only=True)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    other_seed = train_policy([demos], str(tmp_path / "other"), epochs=1, seed=6, **SMALL)
+    assert other_seed["loss_history"][0] != full["loss_history"][0]
+    with pytest.raises(UserInputError, match="cannot resume, field 'config'"):
+        train_policy([demos], str(tmp_path / "cut"), epochs=3, seed=5, lr=0.5, resume=True, **SMALL)
+    (tmp_path / "cut" / "checkpoint.pt").write_bytes(b"truncated")
+    with pytest.raises(UserInputError, match="unreadable checkpoint"):
+        train_policy([demos], str(tmp_path / "cut"), epochs=3, seed=5, resume=True, **SMALL)
+
+
+@pytest.fixture(scope="module")
+def policy_dir(demos, tmp_path_factory) -> str:
+    out = str(tmp_path_factory.mktemp("policy") / "bc")
+    train_policy([demos], out, epochs=2, seed=1, **SMALL)
+    return out
+
+
+def test_policy_protocol_actions_and_seeded_samples(policy_dir):
+    policy = load_policy(policy_dir, seed=3)
+    assert isinstance(policy, Policy) and as_policy(policy) is policy
+    key = "libero_object/0"
+    obs = {"state": np.linspace(-0.3, 0.3, 8)}
+    policy.reset(metadata(key), seed=3)
+    action = policy(obs)
+    assert action.shape == (7,) and action.dtype == np.float64 and np.abs(action).max() <= 1.0
+    np.testing.assert_array_equal(policy(obs), policy(obs))  # deterministic at evaluation
+    samples = policy.sample(obs, 16)
+    assert samples.shape == (16, 7) and np.abs(samples).max() <= 1.0 and samples.std(0).max() > 0
+    policy.reset(metadata(key), seed=3)
+    policy(obs), policy(obs), policy(obs)
+    np.testing.assert_array_equal(policy.sample(obs, 16), samples)
+    policy.reset(metadata(key), seed=4)
+    assert not np.array_equal(policy.sample(obs, 16), samples)
+
+
+def test_sample_does_not_advance_the_history(policy_dir):
+    key, rng = "libero_object/1", np.random.default_rng(0)
+    first, second = ({"state": rng.normal(size=5)} for _ in range(2))
+    policy = load_policy(policy_dir)
+    policy.reset(metadata(key))
+    policy(first)
+    policy.sample(first, 8)
+    with_sampling = policy(second)
+    policy.reset(metadata(key))
+    policy(first)
+    np.testing.assert_array_equal(policy(second), with_sampling)
+    policy.reset(metadata(key))
+    policy(second)
+    assert not np.array_equal(policy(second), with_sampling)  # the history does matter
+
+
+def test_policy_refuses_other_layouts_tasks_and_missing_reset(policy_dir):
+    policy = load_policy(policy_dir)
+    wrong = [["robot0_eef_pos", 3], ["robot0_gripper_qpos", 2], ["plate_1/pos", 3]]
+    with pytest.raises(UserInputError, match=f"{policy_dir}: observation layout of env task libero_object/0 differs"):
+        policy.reset(metadata("libero_object/0", wrong))
+    with pytest.raises(UserInputError, match=f"{policy_dir}: env task .libero_object/7. is not among the tasks"):
+        policy.reset(metadata("libero_object/7", LAYOUTS["libero_object/1"]))
+    policy.reset()
+    with pytest.raises(UserInputError, match=r"needs reset\(env.metadata\)"):
+        policy({"state": np.zeros(8)})
+    policy.reset(metadata("libero_object/1"))
+    with pytest.raises(UserInputError, match=r"expects \(5,\)"):
+        policy({"state": np.zeros(8)})
+
+
+def test_load_refuses_missing_and_corrupt_dirs(policy_dir, tmp_path):
+    with pytest.raises(UserInputError, match="no such policy directory"):
+        load_policy(str(tmp_path / "nowhere"))
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for name in ("model.pt", "config.json"):
+        (broken / name).write_bytes(open(os.path.join(policy_dir, name), "rb").read())
+    with open(broken / "model.pt", "ab") as fh:
+        fh.write(b"x")
+    with pytest.raises(UserInputError, match="does not match config.json"):
+        load_policy(str(broken))
+    (broken / "config.json").write_text("{not json")
+    with pytest.raises(UserInputError, match="not valid JSON"):
+        load_policy(str(broken))
+    (broken / "config.json").write_text(json.dumps({"format": "something-else"}))
+    with pytest.raises(UserInputError, match="field 'format'"):
+        load_policy(str(broken))
+    os.remove(broken / "model.pt")
+    with pytest.raises(UserInputError, match="missing model.pt"):
+        load_policy(str(broken))
+
+
+def test_config_records_inputs_and_versions(policy_dir):
+    config = json.load(open(os.path.join(policy_dir, "config.json")))
+    assert config["features"]["encoder"]["layouts"] == LAYOUTS
+    assert set(config["features"]["normalization"]) == set(LAYOUTS)
+    assert config["features"]["history"] == 2
+    assert {"torch", "numpy", "libero-elegant"} <= set(config["versions"])
+
+
+def test_training_refuses_bad_input(demos, tmp_path):
+    with pytest.raises(UserInputError, match="epochs must be a positive integer"):
+        train_policy([demos], str(tmp_path / "x"), epochs=0, progress=False)
+    with pytest.raises(UserInputError, match="non-empty list"):
+        train_policy([], str(tmp_path / "x"), epochs=1, progress=False)
+    with pytest.raises(UserInputError, match="no such file"):
+        train_policy([str(tmp_path / "missing.hdf5")], str(tmp_path / "x"), epochs=1, progress=False)
+    other = {"libero_object/1": [["robot0_eef_pos", 3], ["robot0_gripper_qpos", 2], ["plate_1/pos", 3]]}
+    clash = write_demos(tmp_path / "clash.hdf5", demos_per_task=1, steps=3, layouts=other)
+    with pytest.raises(UserInputError, match=r"state_layouts\['libero_object/1'\] differs"):
+        train_policy([demos, clash], str(tmp_path / "x"), epochs=1, progress=False)
