@@ -85,6 +85,20 @@ def _demos(args: argparse.Namespace) -> dict:
                          seed=args.seed, resume=args.resume)
 
 
+def _import_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", help="a LIBERO HDF5 demonstration file")
+    p.add_argument("--out", required=True)
+    p.add_argument("--suite", help="suite of the task (default: found from the file's bddl_file_name)")
+    p.add_argument("--task", type=int, help="task index (with --suite)")
+
+
+@command("import-libero", "replay a LIBERO HDF5 demo file into this project's layout")(_import_args)
+def _import_libero(args: argparse.Namespace) -> dict:
+    from annotations.libero_import import import_libero_hdf5
+
+    return import_libero_hdf5(args.file, args.out, suite=args.suite, task=args.task)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="elegant", description="Measure and improve how elegantly policies execute LIBERO tasks.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

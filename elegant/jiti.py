@@ -16,16 +16,20 @@ Choices made here, each for a reason:
   successful correction the new level becomes the reference instead of triggering again.
 - tau is absolute, or in units of the window's standard deviation (`threshold_mode="std"`), which
   makes it independent of the critic's scale. The absolute default of 1.0 is one step of elegance
-  reward: along a consistent trajectory Q_t - gamma Q_{t+1} = r_t in [0, 1], so a change of more than 1
-  is more than one step of reward explains.
+  reward: along a consistent trajectory Q_t - Q_{t+1} = r_t - (1 - gamma) Q_{t+1} lies in [-1, 1]
+  (r in [0, 1], Q <= 1 / (1 - gamma)) and is far smaller while the reward is steady, so a deviation of
+  more than 1 from the recent level marks an event rather than drift.
 - Ties in the argmax go to candidate 0, the base action: JITI never overrides without a reason.
-- Candidates come from `policy.sample(obs, n)` when the base policy has it (its own distribution:
-  GMM, diffusion noise, ...); otherwise from Gaussian perturbations of a_t clipped to the action bounds.
+- Candidates: the base policy is adapted with `elegant.policies.as_policy`, so they come from its own
+  `sample(obs, N)` when it has one (GMM, diffusion noise, a stochastic TorchRL module) and otherwise
+  from the adapter's seeded Gaussian perturbations of a_t, clipped to the action bounds. Candidate 0
+  is always set to a_t itself, so exactly N candidates are scored and the base action is among them.
 - Decision time is what JITI adds to a step: scoring, bookkeeping and, at interventions, candidate
   sampling. The base policy's own forward pass is excluded because it is paid without JITI too.
 """
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -35,8 +39,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from base_suites.errors import UserInputError, unknown_choice
+from elegant.policies.adapters import as_policy
+from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Observation, as_action
 
-ACTION_DIM = 7
 MODES = ("jiti", "always", "base")
 THRESHOLD_MODES = ("absolute", "std")
 DEFAULT_THRESHOLD = 1.0
@@ -71,20 +76,10 @@ class Decision:
     time: float
 
 
-def perturbation_candidates(action: np.ndarray, n: int, scale: float, rng: np.random.Generator) -> np.ndarray:
-    """`n` candidates for a deterministic policy: `action` itself first, then Gaussian perturbations of it,
-    clipped to the action bounds [-1, 1] so the critic scores what the env would execute."""
-    action = np.asarray(action, dtype=np.float64).reshape(ACTION_DIM)
-    noise = rng.normal(0.0, scale, size=(n - 1, ACTION_DIM))
-    return np.clip(np.vstack([action, action + noise]), -1.0, 1.0)
-
-
-def _state_of(obs: Any) -> np.ndarray:
-    if isinstance(obs, Mapping):
-        if "state" not in obs:
-            raise UserInputError("JITI's critic needs the low-dimensional 'state' observation: make the env with obs='lowdim' or 'both'")
-        return np.asarray(obs["state"])
-    return np.asarray(obs)
+def _state_of(obs: Observation) -> np.ndarray:
+    if "state" not in obs:
+        raise UserInputError("JITI's critic needs the low-dimensional 'state' observation: make the env with obs='lowdim' or 'both'")
+    return np.asarray(obs["state"])
 
 
 class JITI:
@@ -118,7 +113,7 @@ class JITI:
             raise UserInputError(f"JITI threshold and noise_scale must be >= 0, got {threshold} and {noise_scale}")
         if critic is None and mode != "base":
             raise UserInputError(f"JITI mode {mode!r} needs a critic; only mode 'base' runs without one")
-        self.policy = policy
+        self.policy = as_policy(policy, noise_scale=noise_scale, seed=seed)
         self.critic = critic
         self.window = int(window)
         self.threshold = float(threshold)
@@ -126,9 +121,6 @@ class JITI:
         self.n_candidates = int(n_candidates)
         self.mode = mode
         self.noise_scale = float(noise_scale)
-        self.seed = int(seed)
-        self._sample = getattr(policy, "sample", None) if callable(getattr(policy, "sample", None)) else None
-        self._rng = np.random.default_rng(self.seed)
         self._scores: deque[float] = deque(maxlen=self.window)
         self.log: list[Decision] = []
 
@@ -141,33 +133,32 @@ class JITI:
             "threshold_mode": self.threshold_mode,
             "n_candidates": self.n_candidates,
             "noise_scale": self.noise_scale,
-            "candidates": "policy.sample" if self._sample is not None else "gaussian",
+            "policy_adapter": type(self.policy).__name__,
         }
 
-    def reset(self, metadata: Mapping[str, Any], seed: int | None = None) -> None:
-        """Start an episode: forward to the base policy, bind the critic to the env's layout, clear the
-        window and the log; `seed` (if given) restarts the perturbation generator for reproducible episodes."""
-        reset = getattr(self.policy, "reset", None)
-        if callable(reset):
-            reset(metadata)
+    def reset(self, metadata: Mapping[str, Any] | None = None, *, seed: int | None = None) -> None:
+        """Start an episode: reset the base policy (with `seed`, its candidate sampling restarts, so an
+        episode does not depend on the ones before it), bind the critic to the env's state layout, and
+        clear the window and the log."""
+        if self.critic is not None and metadata is None:
+            raise UserInputError("JITI.reset needs the env's metadata to bind the critic: call reset(env.metadata)")
+        self.policy.reset(metadata, seed=seed)
         if self.critic is not None:
             self.critic.bind(metadata)
-        if seed is not None:
-            self._rng = np.random.default_rng(int(seed))
         self._scores.clear()
         self.log = []
 
-    def __call__(self, obs: Any) -> np.ndarray:
-        action = np.clip(np.asarray(self.policy(obs), dtype=np.float64).reshape(ACTION_DIM), -1.0, 1.0)
+    def __call__(self, obs: Observation) -> np.ndarray:
+        action = as_action(self.policy(obs), "base policy")
         start = time.perf_counter()
         if self.critic is None:
             self.log.append(Decision(len(self.log), None, None, None, None, None, False, 0, None, time.perf_counter() - start))
             return action
         state = _state_of(obs)
         mean = std = dq = tau = None
-        if len(self._scores) == self.window:
-            scores = np.fromiter(self._scores, dtype=np.float64, count=self.window)
-            mean, std = float(scores.mean()), float(scores.std())
+        if len(self._scores) == self.window:  # plain Python: ~10x faster than numpy on 10 floats
+            mean = math.fsum(self._scores) / self.window
+            std = math.sqrt(math.fsum((x - mean) ** 2 for x in self._scores) / self.window)
             tau = self.threshold if self.threshold_mode == "absolute" else self.threshold * std
         if self.mode == "always":
             candidates = self._candidates(obs, action)
@@ -191,14 +182,14 @@ class JITI:
         )
         return executed
 
-    def _candidates(self, obs: Any, action: np.ndarray) -> np.ndarray:
+    def _candidates(self, obs: Observation, action: np.ndarray) -> np.ndarray:
         n = self.n_candidates
-        if self._sample is None:
-            return perturbation_candidates(action, n, self.noise_scale, self._rng)
-        drawn = np.asarray(self._sample(obs, n - 1), dtype=np.float64)
-        if drawn.shape != (n - 1, ACTION_DIM):
-            raise ValueError(f"{type(self.policy).__name__}.sample(obs, {n - 1}) returned shape {drawn.shape}, expected ({n - 1}, {ACTION_DIM})")
-        return np.clip(np.vstack([action, drawn]), -1.0, 1.0)
+        drawn = np.asarray(self.policy.sample(obs, n), dtype=np.float64)
+        if drawn.shape != (n, ACTION_DIM):
+            raise ValueError(f"{type(self.policy).__name__}.sample(obs, {n}) returned shape {drawn.shape}, expected ({n}, {ACTION_DIM})")
+        candidates = np.clip(drawn, ACTION_LOW, ACTION_HIGH)
+        candidates[0] = action
+        return candidates
 
     def _score(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
         scores = np.asarray(self.critic.q(state, actions), dtype=np.float64).reshape(-1)

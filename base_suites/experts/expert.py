@@ -54,6 +54,12 @@ def parse_quality(text: str) -> str | dict[str, float]:
     return out
 
 
+def draw_knobs(rates: Mapping[str, float], seed: int, episode: int) -> tuple[dict[str, bool], np.random.Generator]:
+    """The knobs of one episode, independent draws from (seed, episode); also returns the episode RNG."""
+    rng = np.random.default_rng([seed, episode])
+    return {k: bool(rng.random() < p) for k, p in rates.items()}, rng
+
+
 Skill = Callable[[SkillContext], skills.Actions]
 
 
@@ -85,6 +91,8 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[str, Skil
 
 
 def _pick_place(ctx: SkillContext, obj: str, target: str) -> skills.Actions:
+    if not skills.can_grasp(ctx.view, obj):
+        return (yield from skills.push(ctx, obj, target))
     ok = yield from skills.pick(ctx, obj)
     if not ok:
         return False
@@ -108,9 +116,8 @@ class ScriptedExpert:
         collection that passes the episode number reproduces the same episodes."""
         if episode is not None:
             self._episode = int(episode)
-        rng = np.random.default_rng([self.seed, self._episode])
+        self.knobs, rng = draw_knobs(self.rates, self.seed, self._episode)
         self._episode += 1
-        self.knobs = {k: bool(rng.random() < p) for k, p in self.rates.items()}
         self._rng = rng
         self._ctx = SkillContext(self.env.sim, rng, {k for k, on in self.knobs.items() if on})
         self.events = self._ctx.events

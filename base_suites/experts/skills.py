@@ -159,3 +159,42 @@ def knock(ctx: SkillContext, victim: str) -> Actions:
     yield from ctx.goto(end, rot, CLOSE, tol=0.02, max_steps=40)
     yield from ctx.goto(_above(end, shape.top + 0.10), rot, OPEN, tol=0.03, max_steps=40)
     return True
+
+
+def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015) -> Actions:
+    """Slide a flat object (a plate) over the table to `target` with the closed hand behind it."""
+    view = ctx.view
+    shape = shape_of(view, obj)
+    radius = 0.5 * float(np.max(shape.high[:2] - shape.low[:2]))
+    z = shape.bottom + min(0.015, shape.height * 0.6)
+    goal_xy = _target_xy(view, target)
+    for _ in range(4):
+        obj_xy = view.position(obj)[:2]
+        delta = goal_xy - obj_xy
+        if np.linalg.norm(delta) < tolerance:
+            return True
+        d = delta / np.linalg.norm(delta)
+        yaw = float(np.arctan2(d[1], d[0]))  # fingers across the push direction: a wide pushing face
+        rot = grasp_rotation(yaw)
+        start = np.array([*(obj_xy - d * (radius + 0.035)), z])
+        yield from ctx.goto(_above(start, max(view.eef_position()[2], shape.top + 0.08)), rot, CLOSE, tol=0.015, max_steps=100)
+        yield from ctx.goto(start, rot, CLOSE, tol=0.01, max_steps=60, speed=0.6)
+        ctx.servo.reset_integral()
+        for _ in range(100):
+            obj_xy = view.position(obj)[:2]
+            remaining = goal_xy - obj_xy
+            if np.linalg.norm(remaining) < tolerance * 0.7 or remaining @ d < 0:
+                break
+            aim = np.array([*(obj_xy - d * (radius + 0.01) + remaining), z])
+            yield ctx.servo.action(aim - view.eef_position(), rotation_error(rot, view.eef_rotation()), CLOSE, speed=0.4)
+        yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), rot, CLOSE, tol=0.02, max_steps=30)
+    return bool(np.linalg.norm(goal_xy - view.position(obj)[:2]) < tolerance)
+
+
+def can_grasp(view: SimView, obj: str) -> bool:
+    """Whether a top-down grasp exists (flat wide objects such as plates must be pushed instead)."""
+    try:
+        choose_grasp(view, obj)
+        return True
+    except RuntimeError:
+        return False

@@ -1,0 +1,256 @@
+"""The evaluation runner: roll a (JITI-wrapped) policy out on LIBERO tasks and record how elegantly it works.
+
+A run directory holds::
+
+    config.json      what the run is (suite, tasks, policy, critic, mode, seed, JITI settings, ...)
+    episodes.jsonl   one JSON line per finished episode, appended and flushed as it finishes
+    traces/          <suite>_<task>_<episode>.json: JITI's decision log of each episode (for plots)
+    summary.json     metrics overall and per task (written atomically at the end)
+    report.md, *.png the human-readable report
+
+Episode i of a task starts from init state `episode_start(seed, suite, task, i)`, a function of the run
+seed, the task and i only, never of the mode: runs of the modes base / always / jiti with the same seed
+compare on identical starts. Resuming skips the finished episodes and refuses a directory whose
+config.json describes a different run (only the number of episodes may grow).
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+import zlib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from annotations.format import task_key
+from base_suites import UserInputError, get_task, list_tasks, make_env
+from elegant.jiti import JITI
+from elegant.metrics import summarize
+from elegant.report import atomic_write, write_run_report
+
+JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale")
+
+
+def episode_start(seed: int, suite: str, task_index: int, episode: int, n_init_states: int) -> tuple[int, int]:
+    """(init-state index, env reset seed) of episode `episode` of a task.
+
+    The init states are visited in a seeded permutation per task, so the first n episodes use n distinct
+    starts (as LIBERO's 50-episode protocol does); the reset seed drives per-episode randomness such as
+    perturbation placements. Neither depends on the mode or on the other episodes.
+    """
+    task = zlib.crc32(task_key(suite, task_index).encode())
+    order = np.random.default_rng([int(seed), task]).permutation(int(n_init_states))
+    reset_seed = int(np.random.SeedSequence([int(seed), task, int(episode)]).generate_state(1)[0])
+    return int(order[int(episode) % int(n_init_states)]), reset_seed
+
+
+def _describe(obj: Any) -> str | None:
+    """How config.json names a policy or critic: its directory, or the qualified name of its type."""
+    if obj is None:
+        return None
+    if isinstance(obj, (str, os.PathLike)):
+        return os.path.abspath(os.fspath(obj))
+    named = obj if hasattr(obj, "__qualname__") else type(obj)
+    return f"{named.__module__}.{named.__qualname__}"
+
+
+def _load_policy(policy: Any) -> Any:
+    if isinstance(policy, (str, os.PathLike)):
+        from elegant.policies import load_policy
+
+        return load_policy(policy)
+    if not callable(policy):
+        raise UserInputError(f"policy: expected a policy directory or a callable obs -> action, got {type(policy).__name__}")
+    return policy
+
+
+def _load_critic(critic: Any) -> Any:
+    if isinstance(critic, (str, os.PathLike)):
+        import critics
+
+        return critics.load(critic)
+    return critic
+
+
+class EpisodeLog:
+    """RUN/episodes.jsonl: finished episodes, one JSON line each, flushed as each finishes."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.records: list[dict[str, Any]] = []
+        if path.exists():
+            self._read()
+
+    def _read(self) -> None:
+        lines = self.path.read_text().split("\n")
+        complete = lines[:-1]  # everything before the last newline; a crash may leave a partial last line
+        for n, line in enumerate(complete, 1):
+            try:
+                self.records.append(json.loads(line))
+            except json.JSONDecodeError:
+                raise UserInputError(f"{self.path}: line {n} is not valid JSON; the run directory is damaged") from None
+        if lines[-1]:
+            atomic_write(self.path, "".join(line + "\n" for line in complete))
+
+    def done(self) -> set[tuple[str, int]]:
+        return {(r["task"], int(r["episode"])) for r in self.records}
+
+    def append(self, record: dict[str, Any]) -> None:
+        with open(self.path, "a") as f:
+            f.write(json.dumps(record) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        self.records.append(record)
+
+
+def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
+    path = out / "config.json"
+    if not path.exists() and (out / "episodes.jsonl").exists():
+        raise UserInputError(f"{out} holds episodes.jsonl without config.json; choose another directory")
+    if path.exists():
+        if not resume:
+            raise UserInputError(f"{out} already holds a run (config.json); resume it (--resume) or choose another directory")
+        old = json.loads(path.read_text())
+        for key in sorted(set(old) | set(config)):
+            if key != "episodes" and old.get(key) != config.get(key):
+                raise UserInputError(
+                    f"{path}: field {key!r} is {old.get(key)!r} but this run has {config.get(key)!r}; "
+                    "resume only with the same settings (only episodes may change)"
+                )
+    (out / "traces").mkdir(parents=True, exist_ok=True)
+    atomic_write(path, json.dumps(config, indent=2))
+
+
+def _run_episode(env, agent: JITI, monitor, init_index: int, reset_seed: int) -> tuple[dict[str, Any], Any]:
+    """One rollout; returns the episode's numbers and the ITC verdict."""
+    obs, _ = env.reset(seed=reset_seed, options={"init_state": init_index})
+    monitor.reset()
+    agent.reset(env.metadata, seed=reset_seed)
+    env_time, steps, done, info = 0.0, 0, False, {}
+    while not done:
+        action = agent(obs)
+        start = time.perf_counter()
+        obs, _, terminated, truncated, info = env.step(action)
+        env_time += time.perf_counter() - start
+        monitor.step(action)
+        steps += 1
+        done = terminated or truncated
+    verdict = monitor.verdict(bool(info["success"]))
+    numbers = {
+        "success": bool(verdict.success),
+        "elegant": bool(verdict.elegant),
+        "violated": sorted(verdict.violated),
+        "interventions": agent.interventions,
+        "overrides": sum(d.chosen != 0 for d in agent.log),
+        "steps": steps,
+        "decision_time": float(np.mean([d.time for d in agent.log])),
+        "env_step_time": env_time / steps,
+        "perturbation": info.get("perturbation", []),
+    }
+    return numbers, verdict
+
+
+def evaluate(
+    suite: str,
+    tasks: Sequence[int | str] | None,
+    policy: Any,
+    critic: Any = None,
+    mode: str = "jiti",
+    episodes: int = 10,
+    seed: int = 0,
+    out: str | os.PathLike = "runs/eval",
+    resume: bool = False,
+    perturbation: str | None = None,
+    jiti_kwargs: Mapping[str, Any] | None = None,
+    progress: bool = True,
+    *,
+    max_steps: int | None = None,
+    obs: str = "lowdim",
+) -> dict[str, Any]:
+    """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
+    object, or None for mode "base") on `tasks` of `suite` (None: all), `episodes` per task.
+
+    Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
+    episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,
+    overrides_per_episode, steps_per_episode, decision_time, env_step_time, decision_overhead, per_task.
+    """
+    from itc import ITCMonitor
+
+    if int(episodes) < 1:
+        raise UserInputError(f"episodes must be >= 1, got {episodes}")
+    settings = dict(jiti_kwargs or {})
+    unknown = sorted(set(settings) - set(JITI_SETTINGS))
+    if unknown:
+        raise UserInputError(f"jiti settings {unknown} unknown; expected some of: {', '.join(JITI_SETTINGS)}")
+    if critic is not None and obs == "rgb":
+        raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
+    specs = [get_task(suite, t) for t in tasks] if tasks is not None else list_tasks(suite)
+    indices = list(dict.fromkeys(spec.index for spec in specs))
+    agent = JITI(_load_policy(policy), _load_critic(critic), mode=mode, seed=seed, **settings)
+    config = {
+        "suite": suite,
+        "tasks": indices,
+        "policy": _describe(policy),
+        "critic": _describe(critic),
+        "jiti": {k: v for k, v in agent.config().items() if k != "mode"},
+        "mode": mode,
+        "episodes": int(episodes),
+        "seed": int(seed),
+        "perturbation": perturbation,
+        "max_steps": max_steps,
+        "obs": obs,
+    }
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    _prepare_run_dir(out, config, resume)
+    log = EpisodeLog(out / "episodes.jsonl")
+    done = log.done()
+    todo = {i: [e for e in range(int(episodes)) if (task_key(suite, i), e) not in done] for i in indices}
+    with tqdm(total=len(indices) * int(episodes), initial=len(indices) * int(episodes) - sum(map(len, todo.values())),
+              desc=f"eval {mode}", unit="ep", disable=not progress) as bar:
+        for index in indices:
+            if todo[index]:
+                _run_task(suite, index, todo[index], agent, ITCMonitor, config, log, out, bar)
+    records = [r for r in log.records if r["task"] in {task_key(suite, i) for i in indices} and int(r["episode"]) < int(episodes)]
+    summary = {"config": config, **summarize(records)}
+    atomic_write(out / "summary.json", json.dumps(summary, indent=2))
+    write_run_report(out, summary, records)
+    return summary
+
+
+def _run_task(suite: str, index: int, episodes: list[int], agent: JITI, monitor_cls: Any, config: dict[str, Any],
+              log: EpisodeLog, out: Path, bar: tqdm) -> None:
+    """The missing episodes of one task on one env (built once: construction costs ~2.5 s)."""
+    key = task_key(suite, index)
+    env = make_env(suite, index, seed=config["seed"], obs=config["obs"], max_steps=config["max_steps"], perturbation=config["perturbation"])
+    try:
+        monitor = monitor_cls(env)
+        for episode in episodes:
+            init_index, reset_seed = episode_start(config["seed"], suite, index, episode, env.task.n_init_states)
+            numbers, verdict = _run_episode(env, agent, monitor, init_index, reset_seed)
+            record = {"task": key, "suite": suite, "task_index": index, "episode": episode, "init_index": init_index,
+                      "seed": reset_seed, "mode": config["mode"], **numbers,
+                      "trace": f"traces/{trace_name(suite, index, episode)}"}
+            trace = {
+                **{k: record[k] for k in ("task", "episode", "init_index", "mode", "success", "elegant", "violated")},
+                "jiti": config["jiti"],
+                "segments": {c: np.asarray(v, dtype=bool).tolist() for c, v in verdict.segments.items()},
+                "events": [list(e) for e in verdict.events],
+                "decisions": agent.trace(),
+            }
+            atomic_write(out / record["trace"], json.dumps(trace))
+            log.append(record)
+            bar.update(1)
+            bar.set_postfix(success=f"{np.mean([r['success'] for r in log.records]):.2f}",
+                            esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}")
+    finally:
+        env.close()
+
+
+def trace_name(suite: str, task_index: int, episode: int) -> str:
+    """File name of an episode's decision log under RUN/traces/."""
+    return f"{suite}_{int(task_index)}_{int(episode)}.json"

@@ -1,0 +1,276 @@
+"""Human-readable reports of evaluation runs: markdown tables and PNG plots (matplotlib, no display).
+
+`write_run_report` turns one run directory into report.md, success_esr.png (success and ESR per task)
+and q_trace.png (the critic's score of the base action along one episode, with the window mean, the
+threshold band, the interventions and the violated ITC windows). `compare_runs` puts several runs side
+by side (`elegant report RUN_A RUN_B ...`) and, where runs differ only in their perturbation, adds the
+LIBERO-PRO robustness numbers. Figures are drawn on `matplotlib.figure.Figure` directly, so no global
+pyplot state or GUI backend is involved; every file is written atomically.
+"""
+from __future__ import annotations
+
+import io
+import json
+import os
+import re
+import tempfile
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from annotations.format import CRITERIA, SEGMENT_LENGTH
+from base_suites.errors import UserInputError
+from elegant.metrics import robustness_metrics
+
+
+def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
+    """Write a whole file via a temp file in the same directory and os.replace: readers never see half."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data.encode() if isinstance(data, str) else data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+
+
+def _save(fig, path: Path) -> Path:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    atomic_write(path, buf.getvalue())
+    return path
+
+
+def _pct(x: float) -> str:
+    return "n/a" if x is None or np.isnan(x) else f"{100 * x:.1f}%"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    lines = ["| " + " | ".join(map(str, header)) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(map(str, row)) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+# ---- plots -----------------------------------------------------------------------------------------
+
+def plot_bars(groups: Sequence[str], series: Mapping[str, Sequence[float]], title: str, path: Path) -> Path:
+    """Grouped bars: one group per entry of `groups`, one bar per series (values are rates in [0, 1])."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(max(5.0, 0.9 * len(groups) * max(1, len(series)) ** 0.5 + 2), 3.6))
+    ax = fig.add_subplot()
+    width = 0.8 / max(1, len(series))
+    x = np.arange(len(groups))
+    for i, (name, values) in enumerate(series.items()):
+        bars = ax.bar(x + (i - (len(series) - 1) / 2) * width, values, width, label=name)
+        ax.bar_label(bars, fmt="%.2f", fontsize=6)
+    ax.set_xticks(x, groups, rotation=30, ha="right", fontsize=8)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("rate")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8, loc="best")
+    return _save(fig, path)
+
+
+def _floats(values: Sequence[float | None]) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+
+def plot_q_trace(trace: Mapping[str, Any], path: Path) -> Path:
+    """The Q trace of one episode: base action's score, window mean +- tau, interventions, violated windows."""
+    from matplotlib.figure import Figure
+
+    d = trace["decisions"]
+    steps = np.asarray(d["step"])
+    q, mean, tau, chosen_q = (_floats(d[k]) for k in ("q", "mean", "tau", "chosen_q"))
+    fig = Figure(figsize=(9, 3.6))
+    ax = fig.add_subplot()
+    for c, kept in trace.get("segments", {}).items():
+        for w, ok in enumerate(kept):
+            if not ok:
+                ax.axvspan(w * SEGMENT_LENGTH, (w + 1) * SEGMENT_LENGTH, color="tab:orange", alpha=0.07, lw=0)
+    ax.plot(steps, q, lw=1.2, label="Q(s, base action)")
+    ax.plot(steps, mean, "--", lw=1, color="gray", label="window mean")
+    ax.fill_between(steps, mean - tau, mean + tau, color="gray", alpha=0.15, lw=0, label="mean ± τ")
+    hit = np.asarray(d["intervened"], dtype=bool)
+    ax.scatter(steps[hit], chosen_q[hit], marker="v", s=18, color="tab:red", zorder=3, label="intervention (executed Q)")
+    ax.set_xlabel("step")
+    ax.set_ylabel("Q")
+    violated = ", ".join(trace.get("violated", [])) or "none"
+    ax.set_title(f"{trace['task']} episode {trace['episode']} ({trace['mode']}): success={trace['success']}, "
+                 f"elegant={trace['elegant']}, violated: {violated} (shaded windows)", fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    return _save(fig, path)
+
+
+# ---- one run ---------------------------------------------------------------------------------------
+
+def _summary_rows(s: Mapping[str, Any]) -> list[list[str]]:
+    rows = [
+        ["episodes", str(s["episodes"])],
+        ["success rate", _pct(s["success_rate"])],
+        ["ESR (elegant success rate)", _pct(s["esr"])],
+    ]
+    rows += [[f"violation rate: {c}", _pct(v)] for c, v in s["itc_violation_rate"].items()]
+    rows += [
+        ["interventions / episode", f"{s['interventions_per_episode']:.2f}"],
+        ["overrides / episode (executed action != base)", f"{s['overrides_per_episode']:.2f}"],
+        ["steps / episode", f"{s['steps_per_episode']:.1f}"],
+        ["decision time / step", f"{1e3 * s['decision_time']:.3f} ms"],
+        ["env step time / step", f"{1e3 * s['env_step_time']:.2f} ms"],
+        ["decision overhead", _pct(s["decision_overhead"])],
+    ]
+    return rows
+
+
+def _traced_episode(run_dir: Path, records: Sequence[Mapping[str, Any]]) -> dict[str, Any] | None:
+    """The trace to plot: the episode with the most interventions (the first such), if it has Q values."""
+    if not records:
+        return None
+    best = max(records, key=lambda r: r["interventions"])
+    path = run_dir / best["trace"]
+    if not path.exists():
+        return None
+    trace = json.loads(path.read_text())
+    return trace if any(v is not None for v in trace["decisions"]["q"]) else None
+
+
+def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) -> list[Path]:
+    """Write report.md and its PNG plots into `run_dir`; returns the files written."""
+    run_dir = Path(run_dir)
+    cfg = summary["config"]
+    per_task = summary["per_task"]
+    tasks = list(per_task)
+    files = [plot_bars(tasks, {"success": [per_task[t]["success_rate"] for t in tasks], "ESR": [per_task[t]["esr"] for t in tasks]},
+                       f"{cfg['suite']} — mode {cfg['mode']}", run_dir / "success_esr.png")]
+    trace = _traced_episode(run_dir, records)
+    if trace is not None:
+        files.append(plot_q_trace(trace, run_dir / "q_trace.png"))
+    jiti = cfg["jiti"]
+    lines = [
+        f"# Evaluation: {cfg['suite']}, mode `{cfg['mode']}`",
+        "",
+        f"- policy: `{cfg['policy']}`",
+        f"- critic: `{cfg['critic']}`",
+        f"- tasks: {', '.join(map(str, cfg['tasks']))}; episodes per task: {cfg['episodes']}; seed: {cfg['seed']}",
+        f"- perturbation: {cfg['perturbation'] or 'none'}; max steps: {cfg['max_steps'] or 'suite default'}",
+        f"- JITI: window {jiti['window']}, threshold {jiti['threshold']} ({jiti['threshold_mode']}), "
+        f"N = {jiti['n_candidates']}, candidates from {jiti['policy_adapter']}.sample",
+        "",
+        "## Overall",
+        "",
+        _table(["metric", "value"], _summary_rows(summary)),
+        "",
+        "Violation rate: fraction of episodes with at least one violated 25-step window of the criterion. "
+        "Decision overhead: JITI's time per step over the env's step time.",
+        "",
+        "## Per task",
+        "",
+        _table(
+            ["task", "episodes", "success", "ESR", "interventions / ep", *CRITERIA],
+            [[t, b["episodes"], _pct(b["success_rate"]), _pct(b["esr"]), f"{b['interventions_per_episode']:.2f}",
+              *(_pct(b["itc_violation_rate"][c]) for c in CRITERIA)] for t, b in per_task.items()],
+        ),
+        "",
+        "![success and ESR per task](success_esr.png)",
+    ]
+    if trace is not None:
+        lines += ["", f"## Q trace: {trace['task']}, episode {trace['episode']}", "", "![Q trace](q_trace.png)"]
+    atomic_write(run_dir / "report.md", "\n".join(lines) + "\n")
+    return [run_dir / "report.md", *files]
+
+
+# ---- several runs ----------------------------------------------------------------------------------
+
+def _load_summary(run_dir: Path) -> dict[str, Any]:
+    path = run_dir / "summary.json"
+    if not path.exists():
+        raise UserInputError(f"{run_dir}: no summary.json; expected the directory of a finished `elegant eval` run")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError:
+        raise UserInputError(f"{path}: not valid JSON") from None
+
+
+def perturbation_axis(perturbation: str | None) -> str:
+    """The robustness axis a run's perturbation string belongs to: "ori" for none, "init+language" for two."""
+    if not perturbation:
+        return "ori"
+    return "+".join(re.match(r"[a-z_]*", item.strip()).group(0) for item in perturbation.split(","))
+
+
+def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """LIBERO-PRO numbers for each group of runs that differ only in their perturbation."""
+    groups: dict[str, dict[str, Mapping[str, Any]]] = {}
+    for s in summaries:
+        cfg = s["config"]
+        key = json.dumps([cfg["suite"], cfg["tasks"], cfg["policy"], cfg["critic"], cfg["mode"]])
+        groups.setdefault(key, {})[perturbation_axis(cfg["perturbation"])] = s
+    out = {}
+    for key, by_axis in groups.items():
+        if "ori" in by_axis and len(by_axis) > 1:
+            suite, _, policy, _, mode = json.loads(key)
+            name = f"{suite} / {mode} / {os.path.basename(str(policy))}"
+            out[name] = {
+                "success": robustness_metrics({a: s["success_rate"] for a, s in by_axis.items()}),
+                "elegant": robustness_metrics({a: s["esr"] for a, s in by_axis.items()}),
+            }
+    return out
+
+
+def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike | None = None) -> dict[str, Any]:
+    """Side-by-side comparison of finished runs (`elegant report RUN_A RUN_B ...`).
+
+    Returns {"runs": [{label, dir, config}], "markdown": str, "robustness": {...}, "files": [...]}. With
+    `out`, writes out/comparison.md and out/comparison.png (grouped bars of success and ESR per task);
+    without it nothing is written.
+    """
+    if not run_dirs:
+        raise UserInputError("report: expected at least one run directory")
+    dirs = [Path(d) for d in run_dirs]
+    summaries = [_load_summary(d) for d in dirs]
+    names = [d.name or str(d) for d in dirs]
+    if len(set(names)) < len(names):
+        names = [str(d) for d in dirs]
+    labels = [f"{n} ({s['config']['mode']})" for n, s in zip(names, summaries)]
+    overall = [_summary_rows(s) for s in summaries]
+    rows = [[overall[0][i][0], *(o[i][1] for o in overall)] for i in range(len(overall[0]))]
+    tasks = list(dict.fromkeys(t for s in summaries for t in s["per_task"]))
+
+    def cell(s: Mapping[str, Any], t: str) -> str:
+        b = s["per_task"].get(t)
+        return "—" if b is None else f"{_pct(b['success_rate'])} / {_pct(b['esr'])}"
+
+    lines = ["# Run comparison", "", _table(["metric", *labels], rows), "", "## Success / ESR per task", "",
+             _table(["task", *labels], [[t, *(cell(s, t) for s in summaries)] for t in tasks])]
+    robustness = _robustness(summaries)
+    for name, r in robustness.items():
+        axes = list(r["success"]["acc"])
+        lines += ["", f"## Robustness (LIBERO-PRO): {name}", "", _table(
+            ["", "ori", *axes, "PRO (mean over axes)", "mean gap"],
+            [[kind, _pct(r[kind]["acc_ori"]), *(f"{_pct(r[kind]['acc'][a])} (gap {_pct(r[kind]['gap'][a])})" for a in axes),
+              _pct(r[kind]["pro"]), _pct(r[kind]["mean_gap"])] for kind in ("success", "elegant")])]
+    markdown = "\n".join(lines) + "\n"
+    files: list[Path] = []
+    if out is not None:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        groups = ["all", *tasks]
+        series = {}
+        for label, s in zip(labels, summaries):
+            for metric, name in (("success_rate", "success"), ("esr", "ESR")):
+                series[f"{label} {name}"] = [s[metric] if g == "all" else s["per_task"].get(g, {}).get(metric, np.nan) for g in groups]
+        files = [plot_bars(groups, series, "success and ESR per task", out / "comparison.png")]
+        atomic_write(out / "comparison.md", markdown + "\n![success and ESR per task](comparison.png)\n")
+        files.insert(0, out / "comparison.md")
+    return {
+        "runs": [{"label": l, "dir": str(d), "config": s["config"]} for l, d, s in zip(labels, dirs, summaries)],
+        "markdown": markdown,
+        "robustness": robustness,
+        "files": [str(f) for f in files],
+    }

@@ -1,0 +1,138 @@
+"""The evaluation runner on the real simulator: files, summary numbers, identical starts across modes,
+determinism, resume (including a crash-truncated log) and refusal of a different config.
+
+Runs are tiny (1 task, 2 episodes, 20 steps) with the real ITC monitor; the base policy plunges the hand
+into the objects, which breaks constraints within 20 steps. The critic stand-in has the `critics`
+interface (bind, q(state, actions)); its score falls with the hand's height, so it changes along the
+trajectory and JITI with a small threshold does intervene, preferring candidates that drift slightly in x.
+"""
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from base_suites import UserInputError
+from elegant.evaluation import episode_start, evaluate
+
+pytestmark = pytest.mark.sim
+SUITE, TASK, STEPS = "libero_object", 0, 20
+JITI_SETTINGS = {"window": 3, "threshold": 0.02}
+TIMING = ("decision_time", "env_step_time")
+
+
+class ReachCritic:
+    def bind(self, metadata):
+        assert metadata["suite"] == SUITE
+
+    def q(self, state, actions):
+        return 5.0 * state[2] - np.linalg.norm(np.asarray(actions)[:, :3] - [0.05, 0.0, -1.0], axis=1)
+
+
+class PlungePolicy:
+    def __call__(self, obs):
+        return np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0])
+
+
+def run(out, mode="jiti", episodes=2, resume=False, **kw):
+    return evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), mode, episodes, 0, out, resume=resume,
+                    jiti_kwargs=JITI_SETTINGS, progress=False, max_steps=STEPS, **kw)
+
+
+def records(out):
+    return [json.loads(line) for line in (out / "episodes.jsonl").read_text().splitlines()]
+
+
+def untimed(recs):
+    return [{k: v for k, v in r.items() if k not in TIMING} for r in recs]
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval")
+    full = run(root / "full")
+    run(root / "resumed", episodes=1)
+    first = (root / "resumed" / "episodes.jsonl").read_text()
+    resumed = run(root / "resumed", resume=True)
+    base = run(root / "base", mode="base")
+    return {"root": root, "full": full, "resumed": resumed, "first": first, "base": base}
+
+
+def test_run_directory_and_summary_numbers(runs):
+    out = runs["root"] / "full"
+    recs = records(out)
+    assert [r["episode"] for r in recs] == [0, 1] and all(r["task"] == f"{SUITE}/{TASK}" for r in recs)
+    for r in recs:
+        trace = json.loads((out / r["trace"]).read_text())
+        assert trace["violated"] == r["violated"] and all(c in r["violated"] for _, c, _ in trace["events"])
+        assert len(trace["decisions"]["step"]) == r["steps"] == STEPS
+        assert sum(trace["decisions"]["intervened"]) == r["interventions"]
+        assert sum(c != 0 for c in trace["decisions"]["chosen"]) == r["overrides"]
+        assert r["decision_time"] > 0 and r["env_step_time"] > 0
+    s = runs["full"]
+    assert json.loads((out / "summary.json").read_text()) == json.loads(json.dumps(s))
+    assert s["episodes"] == 2 and s["success_rate"] == np.mean([r["success"] for r in recs])
+    assert s["esr"] == np.mean([r["elegant"] for r in recs])
+    assert s["interventions_per_episode"] == np.mean([r["interventions"] for r in recs]) > 0
+    assert any(r["violated"] for r in recs)  # the plunge breaks constraints: the verdict reaches the summary
+    assert s["itc_violation_rate"] == {c: np.mean([c in r["violated"] for r in recs]) for c in s["itc_violation_rate"]}
+    assert s["decision_overhead"] == pytest.approx(s["decision_time"] / s["env_step_time"])
+    assert s["per_task"][f"{SUITE}/{TASK}"]["episodes"] == 2
+    assert json.loads((out / "config.json").read_text())["jiti"]["threshold"] == 0.02
+    for name in ("report.md", "success_esr.png", "q_trace.png"):
+        assert (out / name).stat().st_size > 0
+
+
+def test_resume_runs_only_missing_episodes_and_matches_a_fresh_run(runs):
+    out = runs["root"] / "resumed"
+    text = (out / "episodes.jsonl").read_text()
+    assert text.startswith(runs["first"]) and len(text.splitlines()) == 2  # episode 0 was not rerun
+    # same seed, same episodes: the same starts, decisions and outcomes as an uninterrupted run
+    assert untimed(records(out)) == untimed(records(runs["root"] / "full"))
+    fresh = json.loads((runs["root"] / "full" / "traces" / f"{SUITE}_{TASK}_1.json").read_text())["decisions"]
+    again = json.loads((out / "traces" / f"{SUITE}_{TASK}_1.json").read_text())["decisions"]
+    assert again["q"] == fresh["q"] and again["chosen"] == fresh["chosen"]
+
+
+def test_modes_start_from_the_same_init_states(runs):
+    jiti, base = records(runs["root"] / "full"), records(runs["root"] / "base")
+    assert [(r["init_index"], r["seed"]) for r in jiti] == [(r["init_index"], r["seed"]) for r in base]
+    expected = [episode_start(0, SUITE, TASK, i, 50) for i in range(2)]
+    assert [(r["init_index"], r["seed"]) for r in jiti] == expected
+    assert all(r["interventions"] == 0 and r["overrides"] == 0 for r in base)
+    trace = json.loads((runs["root"] / "base" / base[0]["trace"]).read_text())
+    assert None not in trace["decisions"]["q"]  # base mode still logs the critic's scores
+
+
+def test_episode_start_is_seeded_and_visits_distinct_inits():
+    starts = [episode_start(3, SUITE, TASK, i, 50) for i in range(50)]
+    assert sorted(init for init, _ in starts) == list(range(50))
+    assert starts == [episode_start(3, SUITE, TASK, i, 50) for i in range(50)]
+    assert starts != [episode_start(4, SUITE, TASK, i, 50) for i in range(50)]
+    assert starts[:5] != [episode_start(3, SUITE, 1, i, 50) for i in range(5)]
+
+
+def test_refuses_existing_run_without_resume_and_a_different_config(runs):
+    out = runs["root"] / "full"
+    with pytest.raises(UserInputError, match="already holds a run"):
+        run(out)
+    with pytest.raises(UserInputError, match="field 'mode'"):
+        run(out, mode="always", resume=True)
+
+
+def test_resume_drops_a_partial_last_line(runs):
+    out = runs["root"] / "crashed"
+    shutil.copytree(runs["root"] / "full", out)
+    with open(out / "episodes.jsonl", "a") as f:
+        f.write('{"task": "libero_obj')
+    summary = run(out, resume=True)
+    assert summary["episodes"] == 2 and len(records(out)) == 2
+
+
+def test_bad_arguments_are_user_errors(tmp_path):
+    with pytest.raises(UserInputError, match="jiti settings"):
+        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), "jiti", 1, 0, tmp_path, jiti_kwargs={"windw": 3})
+    with pytest.raises(UserInputError, match="episodes"):
+        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), "jiti", 0, 0, tmp_path)
+    with pytest.raises(UserInputError, match="needs a critic"):
+        evaluate(SUITE, [TASK], PlungePolicy(), None, "jiti", 1, 0, tmp_path)

@@ -1,0 +1,195 @@
+"""JITI's decision rule on hand-made Q sequences, its modes, thresholds, warm-up and candidate sources.
+
+The critic stand-in scores Q(s, a) = base_q[t] + a[0], where the state carries the step t: the base
+action (a[0] = 0) scores exactly the hand-made value and candidates can be ranked by their first entry.
+"""
+import numpy as np
+import pytest
+
+from base_suites import UserInputError
+from elegant.jiti import JITI
+
+META = {"suite": "libero_object", "task_index": 0, "state_layout": [["t", 1]]}
+BASE = np.array([0.0, 0.1, -0.2, 0.0, 0.0, 0.0, -1.0])
+
+
+class ScriptedCritic:
+    """Q(s, a) = base_q[t] + a[0]; remembers every batch it scored and every bind."""
+
+    def __init__(self, base_q):
+        self.base_q = list(base_q)
+        self.batches, self.bound = [], []
+
+    def bind(self, metadata):
+        self.bound.append(metadata)
+
+    def q(self, state, actions):
+        self.batches.append(np.array(actions))
+        return self.base_q[int(state[0])] + np.asarray(actions)[:, 0]
+
+
+class SamplingPolicy:
+    """Deterministic base action; `sample` returns candidates whose first entry grows with the row."""
+
+    def __init__(self):
+        self.samples, self.resets = 0, []
+
+    def __call__(self, obs):
+        return BASE.copy()
+
+    def sample(self, obs, n):
+        self.samples += 1
+        out = np.repeat(BASE[None], n, axis=0)
+        out[:, 0] = np.arange(n) / 100.0
+        return out
+
+    def reset(self, metadata=None, *, seed=None):
+        self.resets.append((metadata, seed))
+
+
+def rollout(jiti, steps):
+    jiti.reset(META, seed=0)
+    return [jiti({"state": np.array([float(t)])}) for t in range(steps)]
+
+
+def test_no_intervention_when_q_is_flat():
+    jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 30), window=10, threshold=0.5)
+    actions = rollout(jiti, 30)
+    assert jiti.interventions == 0
+    assert all(np.array_equal(a, BASE) for a in actions)
+    assert [d.mean for d in jiti.log[10:]] == [5.0] * 20 and all(d.dq == 0.0 for d in jiti.log[10:])
+
+
+def test_intervention_on_a_jump_executes_the_argmax_and_feeds_its_q_to_the_window():
+    q = [5.0] * 30
+    q[15] = 8.0
+    policy, critic = SamplingPolicy(), ScriptedCritic(q)
+    jiti = JITI(policy, critic, window=10, threshold=0.5, n_candidates=16)
+    actions = rollout(jiti, 30)
+    assert [d.step for d in jiti.log if d.intervened] == [15]
+    d = jiti.log[15]
+    assert d.q == 8.0 and d.mean == 5.0 and d.dq == 3.0
+    assert d.chosen == 15 and d.chosen_q == pytest.approx(8.15)  # argmax: the largest first entry
+    assert actions[15][0] == pytest.approx(0.15) and policy.samples == 1
+    # the executed action's q entered the window: the next mean includes 8.15, not 8.0
+    assert jiti.log[16].mean == pytest.approx((9 * 5.0 + 8.15) / 10)
+    # step 15 scored the base action alone, then its N - 1 alternatives (candidate 0 reuses the base score)
+    assert len(critic.batches[15]) == 1 and np.array_equal(critic.batches[15][0], BASE)
+    assert len(critic.batches[16]) == 15 and not np.any(np.all(critic.batches[16] == BASE, axis=1))
+
+
+def test_warm_up_never_intervenes_before_the_window_is_full():
+    q = [5.0] * 14
+    q[3] = 50.0
+    jiti = JITI(SamplingPolicy(), ScriptedCritic(q), window=10, threshold=0.5)
+    rollout(jiti, 14)
+    assert all(d.mean is None and d.dq is None and not d.intervened for d in jiti.log[:10])
+    assert jiti.log[10].mean == pytest.approx((9 * 5 + 50) / 10)
+    assert jiti.log[10].intervened  # step 10: the spike at step 3 is in the full window
+
+
+def test_threshold_in_units_of_the_window_std():
+    q = [4.0, 6.0] * 5 + [7.0, 7.5]  # window mean 5, std 1
+    jiti = JITI(SamplingPolicy(), ScriptedCritic(q), window=10, threshold=2.0, threshold_mode="std")
+    rollout(jiti, 11)
+    d = jiti.log[10]
+    assert d.std == pytest.approx(1.0) and d.tau == pytest.approx(2.0) and d.dq == pytest.approx(2.0)
+    assert not d.intervened  # dq <= tau keeps the base action
+    q2 = [4.0, 6.0] * 5 + [7.5]
+    jiti2 = JITI(SamplingPolicy(), ScriptedCritic(q2), window=10, threshold=2.0, threshold_mode="std")
+    rollout(jiti2, 11)
+    assert jiti2.log[10].intervened
+    # the same deviation is not critical for an absolute threshold of 3
+    jiti3 = JITI(SamplingPolicy(), ScriptedCritic(q2), window=10, threshold=3.0)
+    rollout(jiti3, 11)
+    assert not jiti3.log[10].intervened and jiti3.log[10].tau == 3.0
+
+
+def test_mode_always_reselects_every_step_and_base_wins_ties():
+    policy, critic = SamplingPolicy(), ScriptedCritic([1.0] * 12)
+    jiti = JITI(policy, critic, window=10, mode="always", n_candidates=4)
+    actions = rollout(jiti, 12)
+    assert jiti.interventions == 12 and policy.samples == 12
+    assert all(len(b) == 4 and np.array_equal(b[0], BASE) for b in critic.batches)
+    assert all(d.chosen == 3 for d in jiti.log) and actions[0][0] == pytest.approx(0.03)
+
+    class FlatCritic(ScriptedCritic):
+        def q(self, state, actions):
+            return np.zeros(len(actions))
+
+    tied = JITI(SamplingPolicy(), FlatCritic([]), mode="always", n_candidates=4)
+    acts = rollout(tied, 3)
+    assert all(d.chosen == 0 for d in tied.log) and all(np.array_equal(a, BASE) for a in acts)
+
+
+def test_mode_base_never_intervenes_but_logs_q():
+    q = [5.0] * 20
+    q[12] = 100.0
+    policy = SamplingPolicy()
+    jiti = JITI(policy, ScriptedCritic(q), mode="base")
+    actions = rollout(jiti, 20)
+    assert jiti.interventions == 0 and policy.samples == 0
+    assert [d.q for d in jiti.log] == q and jiti.log[12].dq == pytest.approx(95.0)
+    assert all(np.array_equal(a, BASE) for a in actions)
+    without = JITI(policy, None, mode="base")
+    rollout(without, 3)
+    assert [d.q for d in without.log] == [None] * 3
+    with pytest.raises(UserInputError, match="needs a critic"):
+        JITI(policy, None, mode="jiti")
+
+
+def test_perturbation_fallback_for_plain_callables_is_clipped_and_seeded():
+    at_bounds = np.array([1.0, -1.0, 1.0, 0.0, 0.0, 0.0, 1.0])
+
+    def plain(obs):
+        return at_bounds
+
+    def run(seed):
+        critic = ScriptedCritic([0.0] * 5)
+        jiti = JITI(plain, critic, mode="always", n_candidates=8, noise_scale=0.5)
+        jiti.reset(META, seed=seed)
+        for t in range(5):
+            jiti({"state": np.array([float(t)])})
+        return np.stack(critic.batches)
+
+    batches = run(seed=3)
+    assert batches.shape == (5, 8, 7)
+    assert np.all(np.abs(batches) <= 1.0) and np.all(batches[:, 0] == at_bounds)
+    assert np.all(batches[:, 1:, 3:6] != 0.0)  # unclipped dimensions were perturbed
+    assert np.array_equal(run(seed=3), batches) and not np.array_equal(run(seed=4), batches)
+
+
+def test_reset_forwards_to_policy_binds_critic_and_clears_window():
+    policy, critic = SamplingPolicy(), ScriptedCritic([5.0] * 12)
+    jiti = JITI(policy, critic, window=10)
+    rollout(jiti, 12)
+    jiti.reset(META, seed=7)
+    assert policy.resets[-1] == (META, 7) and critic.bound[-1] is META
+    assert jiti.log == [] and jiti.interventions == 0
+    jiti({"state": np.array([0.0])})
+    assert jiti.log[0].mean is None  # the window restarted empty
+
+
+def test_trace_has_one_column_per_field_and_one_row_per_step():
+    jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), window=2)
+    rollout(jiti, 4)
+    trace = jiti.trace()
+    assert set(trace) >= {"step", "q", "mean", "dq", "intervened", "chosen", "chosen_q", "time"}
+    assert all(len(v) == 4 for v in trace.values()) and trace["step"] == [0, 1, 2, 3]
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [({"mode": "sometimes"}, "JITI mode"), ({"threshold_mode": "rel"}, "threshold_mode"), ({"window": 0}, "window"),
+     ({"n_candidates": 1}, "n_candidates"), ({"threshold": -1.0}, "threshold")],
+)
+def test_bad_settings_are_user_errors(kwargs, message):
+    with pytest.raises(UserInputError, match=message):
+        JITI(SamplingPolicy(), ScriptedCritic([]), **kwargs)
+
+
+def test_missing_state_observation_is_a_user_error():
+    jiti = JITI(SamplingPolicy(), ScriptedCritic([0.0]))
+    jiti.reset(META)
+    with pytest.raises(UserInputError, match="'state'"):
+        jiti({"agentview": np.zeros((2, 2, 3))})

@@ -1,0 +1,112 @@
+"""Metrics against hand-computed numbers: episode metrics, LIBERO's FWT/NBT/AUC, LIBERO-PRO robustness."""
+import numpy as np
+import pytest
+
+from base_suites import UserInputError
+from elegant.metrics import (
+    clamp_learning_curves,
+    decision_overhead,
+    elegant_success_rate,
+    interventions_per_episode,
+    lifelong_metrics,
+    robustness_metrics,
+    success_rate,
+    summarize,
+    violation_rates,
+)
+
+
+def rec(task, success, elegant, violated, interventions, steps, dt, env):
+    return {"task": task, "success": success, "elegant": elegant, "violated": violated, "interventions": interventions,
+            "overrides": interventions // 2, "steps": steps, "decision_time": dt, "env_step_time": env}
+
+
+RECORDS = [
+    rec("s/0", True, True, [], 2, 10, 0.001, 0.01),
+    rec("s/0", True, False, ["collision"], 4, 20, 0.002, 0.01),
+    rec("s/1", False, False, ["alignment", "collision"], 0, 30, 0.0, 0.02),
+]
+
+
+def test_episode_metrics():
+    assert success_rate(RECORDS) == pytest.approx(2 / 3)
+    assert elegant_success_rate(RECORDS) == pytest.approx(1 / 3)
+    assert violation_rates(RECORDS) == pytest.approx({"sequence": 0.0, "pose_accuracy": 0.0, "alignment": 1 / 3, "collision": 2 / 3})
+    assert interventions_per_episode(RECORDS) == pytest.approx(2.0)
+    timing = decision_overhead(RECORDS)  # weighted by steps: (10*1 + 20*2 + 0) ms / 60 steps
+    assert timing["decision_time"] == pytest.approx(0.05 / 60)
+    assert timing["env_step_time"] == pytest.approx(0.9 / 60)
+    assert timing["decision_overhead"] == pytest.approx(0.05 / 0.9)
+
+
+def test_summary_overall_and_per_task():
+    s = summarize(RECORDS)
+    assert s["episodes"] == 3 and s["overrides_per_episode"] == pytest.approx(1.0) and s["steps_per_episode"] == 20
+    assert list(s["per_task"]) == ["s/0", "s/1"]
+    a, b = s["per_task"]["s/0"], s["per_task"]["s/1"]
+    assert (a["success_rate"], a["esr"], a["itc_violation_rate"]["collision"], a["interventions_per_episode"]) == (1.0, 0.5, 0.5, 3.0)
+    assert (b["success_rate"], b["esr"], b["itc_violation_rate"]["alignment"]) == (0.0, 0.0, 1.0)
+
+
+def test_no_records_is_a_user_error():
+    with pytest.raises(UserInputError, match="no finished episodes"):
+        summarize([])
+
+
+def test_clamping_keeps_the_best_checkpoint():
+    curves = clamp_learning_curves([[0.0, 0.6, 0.8, 0.7], [0.1, 0.9, 0.5, 0.9], [0.3, 0.2, 0.1, 0.0]])
+    assert curves.tolist() == [[0.0, 0.6, 0.8, 0.8], [0.1, 0.9, 0.9, 0.9], [0.3, 0.3, 0.3, 0.3]]
+
+
+S = np.array([[0.8, np.nan, np.nan], [0.6, 0.9, np.nan], [0.4, 0.7, 1.0]])  # only i >= j is read
+C = np.array([[0.0, 0.6, 0.8, 0.7], [0.1, 0.9, 0.5, 0.9], [0.2, 0.4, 1.0, 0.6]])
+
+
+def test_lifelong_metrics_by_hand():
+    m = lifelong_metrics(S, C)
+    # clamped curve means: 0.55, 0.70, 0.65
+    assert m["fwt"] == pytest.approx((0.55 + 0.70 + 0.65) / 3)
+    # NBT_0 = mean(0.8-0.6, 0.8-0.4) = 0.3; NBT_1 = 0.9-0.7 = 0.2; NBT_2 = 0
+    assert m["nbt_per_task"] == pytest.approx([0.3, 0.2, 0.0]) and m["nbt"] == pytest.approx(0.5 / 3)
+    # AUC_0 = (0.55 + 0.6 + 0.4) / 3; AUC_1 = (0.70 + 0.7) / 2; AUC_2 = 0.65
+    assert m["auc_per_task"] == pytest.approx([1.55 / 3, 0.7, 0.65])
+    assert m["auc"] == pytest.approx((1.55 / 3 + 0.7 + 0.65) / 3)
+
+
+def test_lifelong_metrics_match_libero_loop_semantics_on_random_matrices():
+    """LIBERO's compute_metric: bwt_k sums S[k,k]-S[tau,k] over tau>k and divides by K-k-1 only when
+    k+1 < K; auc_k adds the mean clamped curve and divides by K-k; fwt averages the clamped curves."""
+    rng = np.random.default_rng(0)
+    K, E = 5, 11
+    S_, C_ = rng.uniform(size=(K, K)), rng.uniform(size=(K, E))
+    curves = clamp_learning_curves(C_)
+    bwt = auc = 0.0
+    for k in range(K):
+        bwt_k = sum(S_[k, k] - S_[t, k] for t in range(k + 1, K))
+        auc_k = sum(S_[t, k] for t in range(k + 1, K))
+        if k + 1 < K:
+            bwt_k /= K - k - 1
+        bwt += bwt_k
+        auc += (auc_k + curves[k].mean()) / (K - k)
+    m = lifelong_metrics(S_, C_)
+    assert (m["fwt"], m["nbt"], m["auc"]) == pytest.approx((curves.mean(), bwt / K, auc / K))
+
+
+def test_lifelong_metrics_single_task_and_bad_shapes():
+    m = lifelong_metrics([[0.7]], [[0.2, 0.7, 0.5]])
+    assert (m["fwt"], m["nbt"], m["auc"]) == pytest.approx((1.6 / 3, 0.0, 1.6 / 3))  # clamped: 0.2, 0.7, 0.7
+    with pytest.raises(UserInputError, match="K x K"):
+        lifelong_metrics(np.zeros((2, 3)), np.zeros((2, 4)))
+    with pytest.raises(UserInputError, match=r"expected shape \(2, E\)"):
+        lifelong_metrics(np.zeros((2, 2)), np.zeros((3, 4)))
+
+
+def test_robustness_metrics_by_hand():
+    r = robustness_metrics({"ori": 0.9, "object": 0.6, "init": 0.1, "language": 0.8, "env": 0.5})
+    assert r["acc_ori"] == 0.9
+    assert r["gap"] == pytest.approx({"object": 0.3, "init": 0.8, "language": 0.1, "env": 0.4})
+    assert r["pro"] == pytest.approx(0.5) and r["mean_gap"] == pytest.approx(0.4)
+    with pytest.raises(UserInputError, match="unperturbed"):
+        robustness_metrics({"init": 0.1})
+    with pytest.raises(UserInputError, match="at least one perturbed axis"):
+        robustness_metrics({"ori": 0.9})

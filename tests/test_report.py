@@ -1,0 +1,96 @@
+"""Reports from synthetic run directories: report.md and non-empty PNGs, side-by-side comparison, robustness."""
+import json
+
+import pytest
+
+from base_suites import UserInputError
+from elegant.metrics import summarize
+from elegant.report import atomic_write, compare_runs, perturbation_axis, write_run_report
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def make_run(path, mode, successes, perturbation=None, with_q=True):
+    """A run directory as `evaluate` leaves it: config, records with traces, summary."""
+    (path / "traces").mkdir(parents=True)
+    records = []
+    for i, ok in enumerate(successes):
+        steps = 30
+        intervened = [t in (12, 20 + i) for t in range(steps)]
+        trace = {
+            "task": f"libero_goal/{i % 2}", "episode": i, "init_index": i, "mode": mode, "success": ok, "elegant": ok and i % 2 == 0,
+            "violated": [] if ok else ["collision"], "jiti": {},
+            "segments": {"collision": [ok, True]},
+            "decisions": {
+                "step": list(range(steps)),
+                "q": [1.0 + 0.01 * t if with_q else None for t in range(steps)],
+                "mean": [None] * 10 + [1.0 + 0.01 * t for t in range(10, steps)],
+                "tau": [None] * 10 + [0.05] * (steps - 10),
+                "chosen_q": [1.2 + 0.01 * t if with_q else None for t in range(steps)],
+                "intervened": intervened,
+            },
+        }
+        name = f"traces/libero_goal_{i % 2}_{i}.json"
+        (path / name).write_text(json.dumps(trace))
+        records.append({"task": trace["task"], "episode": i, "success": ok, "elegant": trace["elegant"], "violated": trace["violated"],
+                        "interventions": sum(intervened), "overrides": 1, "steps": steps, "decision_time": 1e-4,
+                        "env_step_time": 1e-2, "trace": name})
+    config = {"suite": "libero_goal", "tasks": [0, 1], "policy": "/p", "critic": "/c", "mode": mode, "episodes": 2, "seed": 0,
+              "perturbation": perturbation, "max_steps": None, "obs": "lowdim",
+              "jiti": {"window": 10, "threshold": 1.0, "threshold_mode": "absolute", "n_candidates": 16, "policy_adapter": "BCPolicy"}}
+    summary = {"config": config, **summarize(records)}
+    (path / "summary.json").write_text(json.dumps(summary))
+    return summary, records
+
+
+def assert_png(path):
+    data = path.read_bytes()
+    assert data.startswith(PNG) and len(data) > 2000
+
+
+def test_run_report_writes_markdown_and_plots(tmp_path):
+    summary, records = make_run(tmp_path / "run", "jiti", [True, False, True, True])
+    files = write_run_report(tmp_path / "run", summary, records)
+    assert {f.name for f in files} == {"report.md", "success_esr.png", "q_trace.png"}
+    assert_png(tmp_path / "run" / "success_esr.png")
+    assert_png(tmp_path / "run" / "q_trace.png")
+    md = (tmp_path / "run" / "report.md").read_text()
+    assert "| success rate | 75.0% |" in md and "| ESR (elegant success rate) | 50.0% |" in md
+    assert "| libero_goal/1 | 2 | 50.0% | 0.0% |" in md and "## Q trace: libero_goal/0, episode 0" in md
+
+
+def test_run_report_without_critic_has_no_q_trace(tmp_path):
+    summary, records = make_run(tmp_path / "run", "base", [True, False], with_q=False)
+    files = write_run_report(tmp_path / "run", summary, records)
+    assert [f.name for f in files] == ["report.md", "success_esr.png"]
+    assert not (tmp_path / "run" / "q_trace.png").exists() and "Q trace" not in (tmp_path / "run" / "report.md").read_text()
+
+
+def test_compare_runs_side_by_side_with_robustness(tmp_path):
+    make_run(tmp_path / "ori", "jiti", [True, True, True, False])
+    make_run(tmp_path / "init", "jiti", [True, False, False, False], perturbation="init:3")
+    make_run(tmp_path / "base", "base", [True, False, True, False])
+    result = compare_runs([tmp_path / "ori", tmp_path / "init", tmp_path / "base"], out=tmp_path / "cmp")
+    assert [r["label"] for r in result["runs"]] == ["ori (jiti)", "init (jiti)", "base (base)"]
+    assert "| success rate | 75.0% | 25.0% | 50.0% |" in result["markdown"]
+    (group,) = result["robustness"].values()  # the base run has no unperturbed partner of its own mode
+    assert group["success"]["gap"] == {"init": 0.5} and group["success"]["pro"] == 0.25
+    assert group["elegant"]["acc_ori"] == 0.5 and group["elegant"]["acc"] == {"init": 0.25}
+    assert_png(tmp_path / "cmp" / "comparison.png")
+    assert (tmp_path / "cmp" / "comparison.md").read_text().startswith(result["markdown"])
+
+
+def test_compare_runs_without_out_writes_nothing_and_refuses_non_runs(tmp_path):
+    make_run(tmp_path / "a", "jiti", [True])
+    result = compare_runs([tmp_path / "a"])
+    assert result["files"] == [] and result["robustness"] == {}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a"]
+    with pytest.raises(UserInputError, match="no summary.json"):
+        compare_runs([tmp_path / "missing"])
+
+
+def test_perturbation_axis_and_atomic_write(tmp_path):
+    assert perturbation_axis(None) == "ori" and perturbation_axis("init:3,language@shipped") == "init+language"
+    atomic_write(tmp_path / "f.txt", "one")
+    atomic_write(tmp_path / "f.txt", b"two")
+    assert (tmp_path / "f.txt").read_text() == "two" and [p.name for p in tmp_path.iterdir()] == ["f.txt"]
