@@ -18,6 +18,9 @@ from base_suites.env import LiberoEnv
 from base_suites.errors import UserInputError
 
 
+DEMO_HORIZON_FACTOR = 2
+
+
 def dataset_attrs(env: LiberoEnv, suite: str, tasks: Sequence[int]) -> dict[str, Any]:
     """The `data` group attributes, in LIBERO's robomimic style."""
     domain = env.domain
@@ -64,7 +67,8 @@ def collect_demos(
     summary: dict[str, Any] = {"out": out, "per_task": {}}
     try:
         for task_pos, spec in enumerate(specs):
-            env = make_env(suite, spec.index, seed=seed)
+            # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
+            env = make_env(suite, spec.index, seed=seed, max_steps=DEMO_HORIZON_FACTOR * spec.default_max_steps)
             if writer is None:
                 writer = DemoWriter(out, dataset_attrs(env, suite, [s.index for s in specs]), resume=resume)
             done_before = writer.count

@@ -99,6 +99,70 @@ def _import_libero(args: argparse.Namespace) -> dict:
     return import_libero_hdf5(args.file, args.out, suite=args.suite, task=args.task)
 
 
+def _train_policy_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="+", help="demos HDF5 file(s)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--epochs", type=int, default=50)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--batch-size", type=int, default=256)
+    p.add_argument("--lr", type=float, default=1e-3)
+    p.add_argument("--history", type=int, default=10, help="states stacked as input")
+    p.add_argument("--resume", action="store_true")
+
+
+@command("train-policy", "train the BC base policy (GMM head) on demos")(_train_policy_args)
+def _train_policy(args: argparse.Namespace) -> dict:
+    from elegant.policies import train_policy
+
+    summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
+                           batch_size=args.batch_size, lr=args.lr, history=args.history)
+    summary.pop("loss_history", None)
+    return summary
+
+
+def _eval_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--suite", required=True)
+    p.add_argument("--tasks", help="comma-separated task indices (default: all)")
+    p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
+    p.add_argument("--critic", help="critic directory (from train-critic); required for jiti and always")
+    p.add_argument("--mode", choices=("jiti", "always", "base"), default="jiti")
+    p.add_argument("--episodes", type=int, default=10, help="episodes per task")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--resume", action="store_true", help="skip episodes already in RUN/episodes.jsonl")
+    p.add_argument("--perturbation", help="LIBERO-PRO perturbations, e.g. init:3,language")
+    p.add_argument("--max-steps", type=int)
+    p.add_argument("--window", type=int)
+    p.add_argument("--threshold", type=float)
+    p.add_argument("--threshold-mode", choices=("absolute", "std"))
+    p.add_argument("--candidates", type=int, dest="n_candidates")
+    p.add_argument("--noise-scale", type=float)
+
+
+@command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
+def _eval(args: argparse.Namespace) -> dict:
+    from elegant.evaluation import JITI_SETTINGS, evaluate
+
+    jiti_kwargs = {k: getattr(args, k) for k in JITI_SETTINGS if getattr(args, k, None) is not None}
+    summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
+                       seed=args.seed, out=args.out, resume=args.resume, perturbation=args.perturbation,
+                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps)
+    return {k: v for k, v in summary.items() if k != "per_task"}
+
+
+def _report_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("runs", nargs="+", help="run directories from elegant eval")
+    p.add_argument("--out", help="directory for the comparison (markdown + PNG)")
+
+
+@command("report", "compare evaluation runs side by side")(_report_args)
+def _report(args: argparse.Namespace) -> None:
+    from elegant.report import compare_runs
+
+    result = compare_runs(args.runs, args.out)
+    print(result["markdown"])
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="elegant", description="Measure and improve how elegantly policies execute LIBERO tasks.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")

@@ -63,31 +63,31 @@ def draw_knobs(rates: Mapping[str, float], seed: int, episode: int) -> tuple[dic
 Skill = Callable[[SkillContext], skills.Actions]
 
 
-def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[str, Skill]]:
-    """Order the goal's predicates into skills: switch on first, open containers before filling them,
-    close containers after filling them."""
-    steps: list[tuple[int, str, Skill]] = []
+def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str, ...], Skill]]:
+    """Order the goal's predicates into (predicate, skill) steps: switch on first, open containers
+    before filling them, close containers after filling them. Opening a container for an `in` goal is
+    a step of its own, keyed by the predicate it makes true."""
+    steps: list[tuple[int, tuple[str, ...], Skill]] = []
     opened_for = set()
     for pred in goal:
         kind, *args = pred
         if kind in ("on", "in"):
             obj, target = args
             container = articulated.container_of(view, target)
-            if kind == "in" and container is not None and not view.predicate(("open", target)):
-                if target not in opened_for:
-                    steps.append((1, f"open({target})", lambda c, t=target: articulated.open_(c, t)))
-                    opened_for.add(target)
-            steps.append((2, f"{kind}({obj},{target})", lambda c, o=obj, t=target: _pick_place(c, o, t)))
+            if kind == "in" and container is not None and not view.predicate(("open", target)) and target not in opened_for:
+                steps.append((1, ("open", target), lambda c, t=target: articulated.open_(c, t)))
+                opened_for.add(target)
+            steps.append((2, tuple(pred), lambda c, o=obj, t=target: _pick_place(c, o, t)))
         elif kind == "open":
-            steps.append((1, f"open({args[0]})", lambda c, t=args[0]: articulated.open_(c, t)))
+            steps.append((1, tuple(pred), lambda c, t=args[0]: articulated.open_(c, t)))
         elif kind == "close":
-            steps.append((3, f"close({args[0]})", lambda c, t=args[0]: articulated.close(c, t)))
+            steps.append((3, tuple(pred), lambda c, t=args[0]: articulated.close(c, t)))
         elif kind in ("turnon", "turnoff"):
-            steps.append((0, f"{kind}({args[0]})", lambda c, t=args[0], k=kind: articulated.turn(c, t, on=k == "turnon")))
+            steps.append((0, tuple(pred), lambda c, t=args[0], k=kind: articulated.turn(c, t, on=k == "turnon")))
         else:
             raise UserInputError(f"goal predicate {kind!r} has no expert skill")
     steps.sort(key=lambda s: s[0])
-    return [(name, fn) for _, name, fn in steps]
+    return [(pred, fn) for _, pred, fn in steps]
 
 
 def _pick_place(ctx: SkillContext, obj: str, target: str) -> skills.Actions:
@@ -131,27 +131,42 @@ class ScriptedExpert:
             if victim is not None:
                 yield from skills.knock(ctx, victim)
         if "wrong_order" in ctx.knobs:
-            if len(plan) > 1:
-                plan = plan[::-1]
-                ctx.events.append("wrong_order:reversed")
-            else:
-                plan = plan + [("undo", lambda c: self._undo(c))] + plan
-                ctx.events.append("wrong_order:undo")
+            plan = self._out_of_order(plan)
         for _, skill in plan:
             yield from skill(ctx)
         while True:
             yield np.array([0, 0, 0, 0, 0, 0, OPEN])
 
-    def _undo(self, ctx: SkillContext) -> skills.Actions:
-        """Take the just-placed object back out of its goal and put it down nearby."""
-        kind, *args = self.env.task.goal[0]
+    def _out_of_order(self, plan: list) -> list:
+        """The `wrong_order` knob. LIBERO ends an episode at success, so undoing the final goal is never
+        seen: with several sub-goals, the first one reached is undone and redone; with one, the expert
+        first moves an object the task does not name."""
+        goal = {tuple(p) for p in self.env.task.goal}
+        first = next((i for i, (pred, _) in enumerate(plan) if pred in goal), None)
+        if len(goal) > 1 and first is not None:
+            pred = plan[first][0]
+            self._ctx.events.append(f"wrong_order:undo:{pred[0]}")
+            return plan[: first + 1] + [(("undo",), lambda c, p=pred: self._undo(c, p))] + plan[first:]
+        victim = self._distractor()
+        if victim is None:
+            return plan
+        self._ctx.events.append(f"wrong_order:first:{victim}")
+        return [(("relocate", victim), lambda c, v=victim: self._relocate(c, v))] + plan
+
+    def _relocate(self, ctx: SkillContext, obj: str, distance: tuple[float, float] = (0.05, 0.08)) -> skills.Actions:
+        """Pick an object up and set it down `distance` metres away, in a random direction."""
+        ok = yield from skills.pick(ctx, obj)
+        if not ok:
+            return False
+        angle = ctx.rng.uniform(0, 2 * np.pi)
+        spot = ctx.view.position(obj)[:2] + ctx.rng.uniform(*distance) * np.array([np.cos(angle), np.sin(angle)])
+        return (yield from skills.place(ctx, obj, spot))
+
+    def _undo(self, ctx: SkillContext, pred: tuple[str, ...]) -> skills.Actions:
+        """Reverse one reached sub-goal: take the object back out, or re-close / re-open / switch back."""
+        kind, *args = pred
         if kind in ("on", "in"):
-            obj = args[0]
-            ok = yield from skills.pick(ctx, obj)
-            if ok:
-                yield from ctx.goto(ctx.view.eef_position() + np.array([0, 0, 0.06]), ctx.view.eef_rotation(), 1.0, tol=0.02, max_steps=30)
-                yield from ctx.hold(OPEN, 10)
-            return ok
+            return (yield from self._relocate(ctx, args[0], distance=(0.14, 0.16)))
         if kind == "open":
             return (yield from articulated.close(ctx, args[0]))
         if kind == "close":
@@ -161,7 +176,7 @@ class ScriptedExpert:
     def _distractor(self) -> str | None:
         named = {a for p in self.env.task.goal for a in p[1:]}
         view = self.env.sim
-        candidates = [o for o in view.objects if o not in named]
+        candidates = [o for o in view.objects if o not in named and skills.can_grasp(view, o)]
         if not candidates:
             return None
         eef = view.eef_position()

@@ -79,13 +79,17 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
     return False
 
 
-def _target_xy(view: SimView, target: str) -> np.ndarray:
+def _target_xy(view: SimView, target: str | np.ndarray) -> np.ndarray:
+    if not isinstance(target, str):
+        return np.asarray(target, dtype=float)[:2]
     if target in view.regions:
         return view.region(target).position[:2]
     return view.position(target)[:2]
 
 
-def _support_entity(view: SimView, target: str) -> str | None:
+def _support_entity(view: SimView, target: str | np.ndarray) -> str | None:
+    if not isinstance(target, str):
+        return "table"
     if target in view.regions:
         return view.region(target).parent
     return target
@@ -97,20 +101,20 @@ def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
     return grasp_rotation(yaw, axis, angle)
 
 
-def place(ctx: SkillContext, obj: str, target: str, release_clearance: float = 0.012) -> Actions:
-    """Carry the held `obj` above `target` (a region or an entity) and set it down on contact."""
+def place(ctx: SkillContext, obj: str, target: str | np.ndarray, release_clearance: float = 0.012) -> Actions:
+    """Carry the held `obj` above `target` (a region, an entity or an xy point) and set it down on contact."""
     view = ctx.view
     rot = view.eef_rotation()
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]) - np.pi / 2)
     upright = grasp_rotation(yaw)
     goal_xy = _target_xy(view, target)
-    if "misplace" in ctx.knobs:
+    if "misplace" in ctx.knobs and isinstance(target, str):
         angle = ctx.rng.uniform(0, 2 * np.pi)
         goal_xy = goal_xy + ctx.rng.uniform(0.05, 0.08) * np.array([np.cos(angle), np.sin(angle)])
         ctx.events.append("misplace")
     z_carry = carry_height(view, obj, goal_xy)
     carry_rot = upright
-    if "tilt" in ctx.knobs:
+    if "tilt" in ctx.knobs and isinstance(target, str):
         carry_rot = _tilt_rotation(ctx, yaw, np.deg2rad(ctx.rng.uniform(40, 60)))
         ctx.events.append("tilt")
     yield from ctx.goto(_above(view.eef_position(), z_carry), carry_rot, CLOSE, tol=0.02, rot_tol=0.1, max_steps=60)
@@ -123,7 +127,7 @@ def place(ctx: SkillContext, obj: str, target: str, release_clearance: float = 0
     if carry_rot is not upright:
         yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
     support = _support_entity(view, target)
-    if "drop" in ctx.knobs:
+    if "drop" in ctx.knobs and isinstance(target, str):
         ctx.events.append("drop")
         yield from ctx.hold(OPEN, 10)
         yield from ctx.hold(OPEN, 10)
@@ -162,31 +166,30 @@ def knock(ctx: SkillContext, victim: str) -> Actions:
 
 
 def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015) -> Actions:
-    """Slide a flat object (a plate) over the table to `target` with the closed hand behind it."""
+    """Slide a flat object (a plate) over the table to `target`: the closed fingertips press on its
+    inside near the centre and drag it by friction. Coming from above keeps the hand clear of the
+    tall fixtures that often stand behind such objects."""
     view = ctx.view
     shape = shape_of(view, obj)
-    radius = 0.5 * float(np.max(shape.high[:2] - shape.low[:2]))
-    z = shape.bottom + min(0.015, shape.height * 0.6)
     goal_xy = _target_xy(view, target)
-    for _ in range(4):
+    rot = grasp_rotation(0.0)
+    press_z = shape.bottom + 0.004
+    for _ in range(3):
         obj_xy = view.position(obj)[:2]
-        delta = goal_xy - obj_xy
-        if np.linalg.norm(delta) < tolerance:
-            return True
-        d = delta / np.linalg.norm(delta)
-        yaw = float(np.arctan2(d[1], d[0]))  # fingers across the push direction: a wide pushing face
-        rot = grasp_rotation(yaw)
-        start = np.array([*(obj_xy - d * (radius + 0.035)), z])
-        yield from ctx.goto(_above(start, max(view.eef_position()[2], shape.top + 0.08)), rot, CLOSE, tol=0.015, max_steps=100)
-        yield from ctx.goto(start, rot, CLOSE, tol=0.01, max_steps=60, speed=0.6)
+        if np.linalg.norm(goal_xy - obj_xy) < tolerance:
+            break
+        yield from ctx.goto(_above(obj_xy, max(view.eef_position()[2], shape.top + 0.08)), rot, CLOSE, tol=0.015, max_steps=100)
+        yield from ctx.goto(_above(obj_xy, shape.top + 0.01), rot, CLOSE, tol=0.01, max_steps=60, speed=0.5)
+        yield from ctx.goto(_above(obj_xy, press_z), rot, CLOSE, tol=0.004, max_steps=25, speed=0.3)
         ctx.servo.reset_integral()
-        for _ in range(100):
+        for _ in range(150):
             obj_xy = view.position(obj)[:2]
             remaining = goal_xy - obj_xy
-            if np.linalg.norm(remaining) < tolerance * 0.7 or remaining @ d < 0:
+            if np.linalg.norm(remaining) < tolerance * 0.6:
                 break
-            aim = np.array([*(obj_xy - d * (radius + 0.01) + remaining), z])
-            yield ctx.servo.action(aim - view.eef_position(), rotation_error(rot, view.eef_rotation()), CLOSE, speed=0.4)
+            eef = view.eef_position()
+            aim = np.array([*(eef[:2] + remaining), press_z])
+            yield ctx.servo.action(aim - eef, rotation_error(rot, view.eef_rotation()), CLOSE, speed=0.3)
         yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), rot, CLOSE, tol=0.02, max_steps=30)
     return bool(np.linalg.norm(goal_xy - view.position(obj)[:2]) < tolerance)
 
