@@ -30,7 +30,8 @@ from annotations.format import task_key
 from base_suites import UserInputError, get_task, list_tasks, make_env
 from elegant.jiti import JITI
 from elegant.metrics import summarize
-from elegant.report import atomic_write, write_run_report
+from base_suites.atomic import atomic_write
+from elegant.report import write_run_report
 
 JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale")
 

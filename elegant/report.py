@@ -13,7 +13,6 @@ import io
 import json
 import os
 import re
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,22 +20,9 @@ from typing import Any
 import numpy as np
 
 from annotations.format import CRITERIA, SEGMENT_LENGTH
+from base_suites.atomic import atomic_write
 from base_suites.errors import UserInputError
 from elegant.metrics import robustness_metrics
-
-
-def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
-    """Write a whole file via a temp file in the same directory and os.replace: readers never see half."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data.encode() if isinstance(data, str) else data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
 
 
 def _save(fig, path: Path) -> Path:

@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from base_suites.atomic import atomic_write
+
 from base_suites.errors import UserInputError
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
@@ -25,15 +27,6 @@ from elegant.policies.bc_model import BCNet
 ARTIFACT_FORMAT = "libero-elegant-bc/1"
 MODEL_FILE = "model.pt"
 CONFIG_FILE = "config.json"
-
-
-def atomic_write_bytes(path: str, payload: bytes) -> None:
-    tmp = f"{path}.tmp{os.getpid()}"
-    with open(tmp, "wb") as fh:
-        fh.write(payload)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
 
 
 def torch_bytes(obj: Any) -> bytes:
@@ -53,7 +46,7 @@ def _versions() -> dict[str, str]:
 def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, Any], training: dict[str, Any]) -> None:
     """Publish the final policy in `out` (model.pt first; config.json, which vouches for it, last)."""
     payload = torch_bytes(net.state_dict())
-    atomic_write_bytes(os.path.join(out, MODEL_FILE), payload)
+    atomic_write(os.path.join(out, MODEL_FILE), payload)
     config = {
         "format": ARTIFACT_FORMAT,
         "model": model,
@@ -62,7 +55,7 @@ def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, 
         "versions": _versions(),
         "model_sha256": hashlib.sha256(payload).hexdigest(),
     }
-    atomic_write_bytes(os.path.join(out, CONFIG_FILE), json.dumps(config, indent=1).encode())
+    atomic_write(os.path.join(out, CONFIG_FILE), json.dumps(config, indent=1).encode())
 
 
 def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:

@@ -20,7 +20,8 @@ import torch
 from tqdm import tqdm
 
 from base_suites.errors import UserInputError
-from elegant.policies.bc_artifact import atomic_write_bytes, torch_bytes, write_artifact
+from base_suites.atomic import atomic_write
+from elegant.policies.bc_artifact import torch_bytes, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
@@ -85,7 +86,7 @@ class _Windows:
 
 
 def _save_checkpoint(path: str, state: dict[str, Any]) -> None:
-    atomic_write_bytes(path, torch_bytes(state))
+    atomic_write(path, torch_bytes(state))
 
 
 def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
