@@ -211,6 +211,9 @@ class SimView:
     def eef_rotation(self) -> np.ndarray:
         return self._data.site_xmat[self._model.site("gripper0_grip_site").id].reshape(3, 3).copy()
 
+    def robot_base_position(self) -> np.ndarray:
+        return self._data.xpos[self._model.body("robot0_base").id].copy()
+
     def gripper_opening(self) -> float:
         """Distance between the finger joints in metres (about 0.08 open, 0 closed on nothing)."""
         robot = self._domain.robots[0]

@@ -106,11 +106,15 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
                 for s in (-1.0, 1.0)
             ]
 
+    base = view.robot_base_position()[:2]
+
     def score(cand: Grasp) -> tuple[float, Grasp]:
         clearance = _hand_clearance(cand.position, cand.yaw, cand.position[2], obstacles)
         # Clearance first (capped: beyond 4 cm it no longer matters), then little wrist rotation, then
-        # rim points on the robot's side (shorter reach).
-        value = min(clearance, 0.04) * 10 - 0.02 * abs(cand.yaw - prefer_yaw) - 0.05 * cand.position[0] * cand.rim
+        # rim points on the robot's side: the object then hangs away from the robot and every later
+        # move of the hand stays further inside the arm's reach.
+        reach = float(np.linalg.norm(cand.position[:2] - base)) if cand.rim else 0.0
+        value = min(clearance, 0.04) * 10 - 0.02 * abs(cand.yaw - prefer_yaw) - 1.0 * reach
         return value, Grasp(cand.position, cand.yaw, clearance, cand.rim)
 
     scored = [score(c) for c in pinches]
@@ -121,13 +125,14 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
     return max(scored, key=lambda vs: vs[0])[1]
 
 
-def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, corridor: float = 0.12) -> float:
+def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, clearance: float = 0.03) -> float:
     """Height of the grip point that keeps the held object's bottom `margin` above everything in the
     corridor between where it is and where it goes (not above the whole scene: tall cabinets elsewhere
     would force needlessly high, slow carries)."""
     held_shape = shape_of(view, held)
     grip_to_bottom = view.eef_position()[2] - held_shape.bottom
     start = held_shape.centre[:2]
+    corridor = 0.5 * float(np.max(held_shape.high[:2] - held_shape.low[:2])) + clearance
     seg = np.asarray(goal_xy, dtype=float)[:2] - start
     length = max(np.linalg.norm(seg), 1e-6)
     tops = [view.table_height]

@@ -66,9 +66,11 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
             offset = finger_axis(grasp.yaw + np.pi / 2) * ctx.rng.uniform(0.03, 0.045)
             target = target + offset
             ctx.events.append("regrasp:miss")
-        yield from ctx.goto(_above(view.eef_position(), hover), rot, OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
-        yield from ctx.goto(_above(target, hover), rot, OPEN, tol=0.012, max_steps=120)
-        yield from ctx.goto(target, rot, OPEN, tol=0.006, max_steps=80, speed=0.6)
+        if view.eef_position()[2] < hover - 0.03:
+            yield from ctx.goto(_above(view.eef_position(), hover), rot, OPEN, tol=0.03, rot_tol=0.3, max_steps=60)
+        yield from ctx.goto(_above(target, hover), rot, OPEN, tol=0.02, rot_tol=0.1, max_steps=120)
+        yield from ctx.goto(target + np.array([0, 0, 0.03]), rot, OPEN, tol=0.012, max_steps=60)
+        yield from ctx.goto(target, rot, OPEN, tol=0.006, max_steps=40, speed=0.5)
         yield from ctx.hold(CLOSE, 12, rot)
         lift = _above(target, grasp.position[2] + 0.10)
         yield from ctx.goto(lift, rot, CLOSE, tol=0.02, max_steps=40)
@@ -117,12 +119,12 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, release_clearan
     if "tilt" in ctx.knobs and isinstance(target, str):
         carry_rot = _tilt_rotation(ctx, yaw, np.deg2rad(ctx.rng.uniform(40, 60)))
         ctx.events.append("tilt")
-    yield from ctx.goto(_above(view.eef_position(), z_carry), carry_rot, CLOSE, tol=0.02, rot_tol=0.1, max_steps=60)
+    yield from ctx.goto(_above(view.eef_position(), z_carry), carry_rot, CLOSE, tol=0.03, rot_tol=0.2, max_steps=60)
     # Aim the *object* at the goal: correct for where it sits in the hand.
     for _ in range(3):
         offset = view.position(obj)[:2] - view.eef_position()[:2]
-        yield from ctx.goto(np.array([*(goal_xy - offset), z_carry]), carry_rot, CLOSE, tol=0.01, rot_tol=0.1, max_steps=100)
-        if np.linalg.norm(view.position(obj)[:2] - goal_xy) < 0.012:
+        yield from ctx.goto(np.array([*(goal_xy - offset), z_carry]), carry_rot, CLOSE, tol=0.01, rot_tol=0.1, max_steps=60)
+        if np.linalg.norm(view.position(obj)[:2] - goal_xy) < 0.015:
             break
     if carry_rot is not upright:
         yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
