@@ -146,6 +146,7 @@ class LiberoEnv(gym.Env):
             raw, _, _, _ = self._env.step(SETTLE_ACTION)
         if raw is None:
             raw = self.domain._get_observations(force_update=True)
+        self.domain.sim.forward()  # body poses in step with qpos (see step())
         self._last_raw = raw
         self._steps = 0
         return self._observation(raw), self._info(bool(self._env.check_success()))
@@ -160,6 +161,9 @@ class LiberoEnv(gym.Env):
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(7), -1.0, 1.0)
         raw, _, done, _ = self._env.step(action)
+        # robosuite leaves body poses one physics substep behind the integrated qpos; refresh them so
+        # observations and constraint checks match a replay from the stored MuJoCo state exactly.
+        self.domain.sim.forward()
         self._last_raw = raw
         self._steps += 1
         success = bool(done)
@@ -180,8 +184,8 @@ class LiberoEnv(gym.Env):
     # ---- observations and info --------------------------------------------------------------
     def state_vector(self) -> np.ndarray:
         """The flat low-dimensional state for the current simulator state (layout in metadata)."""
-        raw = self._last_raw
-        parts = [np.asarray(raw[name], dtype=np.float64) for name, _ in ROBOT_LAYOUT]
+        view = self.sim
+        parts = [view.eef_position(), view.hand_quaternion(), view.gripper_joints(), view.arm_joints()]
         for name in self.sim.objects:
             pos, quat = self.sim.pose(name)
             parts += [pos, quat]

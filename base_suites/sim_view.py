@@ -208,16 +208,27 @@ class SimView:
     def eef_position(self) -> np.ndarray:
         return self._data.site_xpos[self._model.site("gripper0_grip_site").id].copy()
 
+    def hand_quaternion(self) -> np.ndarray:
+        """Orientation (x, y, z, w) of the robot hand body, as robosuite's `robot0_eef_quat`."""
+        return _xyzw(self._data.xquat[self._model.body("robot0_right_hand").id])
+
     def eef_rotation(self) -> np.ndarray:
         return self._data.site_xmat[self._model.site("gripper0_grip_site").id].reshape(3, 3).copy()
 
     def robot_base_position(self) -> np.ndarray:
         return self._data.xpos[self._model.body("robot0_base").id].copy()
 
+    def gripper_joints(self) -> np.ndarray:
+        """The two finger joint positions (robosuite's `robot0_gripper_qpos`)."""
+        return self._data.qpos[self._domain.robots[0]._ref_gripper_joint_pos_indexes].copy()
+
+    def arm_joints(self) -> np.ndarray:
+        """The seven arm joint positions (robosuite's `robot0_joint_pos`)."""
+        return self._data.qpos[self._domain.robots[0]._ref_joint_pos_indexes].copy()
+
     def gripper_opening(self) -> float:
         """Distance between the finger joints in metres (about 0.08 open, 0 closed on nothing)."""
-        robot = self._domain.robots[0]
-        qpos = self._data.qpos[robot._ref_gripper_joint_pos_indexes]
+        qpos = self.gripper_joints()
         return float(abs(qpos[0]) + abs(qpos[1]))
 
     # ---- contacts ---------------------------------------------------------------------------

@@ -120,6 +120,28 @@ def _train_policy(args: argparse.Namespace) -> dict:
     return summary
 
 
+def _train_critic_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="+", help="annotated HDF5 file(s) (from elegant annotate)")
+    p.add_argument("--out", required=True)
+    p.add_argument("--steps", type=int, default=20000)
+    p.add_argument("--batch-size", type=int, default=256)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--n-actions", type=int, default=10, help="sampled actions per state for the CQL term")
+    p.add_argument("--cql-weight", type=float, default=5.0)
+    p.add_argument("--checkpoint-every", type=int, default=1000)
+    p.add_argument("--lagrange", action="store_true", help="tune the CQL weight with a Lagrange multiplier")
+    p.add_argument("--resume", action="store_true")
+
+
+@command("train-critic", "train the Cal-QL elegance critic offline on annotated demos")(_train_critic_args)
+def _train_critic(args: argparse.Namespace) -> dict:
+    from critics import train_critic
+
+    return train_critic(args.data, args.out, steps=args.steps, batch_size=args.batch_size, seed=args.seed, resume=args.resume,
+                        n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
+                        with_lagrange=args.lagrange)
+
+
 def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")

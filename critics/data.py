@@ -1,0 +1,197 @@
+"""From annotated HDF5 files to a TorchRL replay buffer of Cal-QL transitions.
+
+Each step t of each demo becomes one transition, in TorchRL's layout (batch = transitions):
+
+    observation        (D,)  float32  the state encoded by `TaskFeatureEncoder` (padded + task one-hot),
+                                      state part normalised with the dataset's mean/std
+    action             (A,)  float32  the dataset action mapped onto [-1, 1] with the dataset's bounds
+    mc_return          (1,)  float32  discounted return-to-go of the elegance reward (Cal-QL's floor)
+    next/observation   (D,)  float32  the same encoding of the state after the action
+    next/reward        (1,)  float32  the elegance reward r_t (1 where all four ITCs hold)
+    next/done          (1,)  bool     True at the last step of a demo
+    next/terminated    (1,)  bool     True at the last step of a demo that reached the task goal
+    next/truncated     (1,)  bool     True at the last step of a demo that did not
+
+Episode ends: the returns-to-go are computed with `torchrl.objectives.value.functional.reward2go`, the
+demo's last step being its end, so the return of the last step is its own reward. A demo that reaches
+the goal ends in a terminal state (the TD target does not bootstrap past it); a demo that stops without
+success is truncated, not terminal: its TD target still bootstraps from the last next-state, while its
+Monte-Carlo return, which stops there, is a lower bound on the true return (exactly what Cal-QL's floor
+needs, as elegance rewards are non-negative). The returns are recomputed here with the gamma stored in
+the file's annotation attrs and checked against the file's own `mc_return`, so a file annotated with a
+different convention is refused instead of silently miscalibrating the critic.
+"""
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+from torchrl.objectives.value.functional import reward2go
+
+from annotations import DemoFile, TaskFeatureEncoder
+from base_suites.errors import UserInputError
+from critics.normalization import Normalization
+
+MC_RETURN_TOLERANCE = 1e-4
+
+
+@dataclass
+class TransitionData:
+    """The transitions of a set of annotated files and what the critic must remember about them."""
+
+    transitions: TensorDict
+    encoder: TaskFeatureEncoder
+    normalization: Normalization
+    gamma: float
+    n_demos: int
+
+    @property
+    def obs_dim(self) -> int:
+        return int(self.transitions["observation"].shape[-1])
+
+    @property
+    def action_dim(self) -> int:
+        return int(self.transitions["action"].shape[-1])
+
+    def fingerprint(self) -> str:
+        """A digest of every transition: a resumed training run checks it still reads the same data."""
+        digest = hashlib.sha256()
+        for key in sorted(self.transitions.keys(True, True), key=str):
+            digest.update(str(key).encode())
+            digest.update(self.transitions.get(key).numpy().tobytes())
+        return digest.hexdigest()
+
+
+@dataclass
+class _RawDemo:
+    path: str
+    name: str
+    task: str
+    obs: np.ndarray
+    next_obs: np.ndarray
+    actions: np.ndarray
+    reward: np.ndarray
+    mc_return: np.ndarray
+    success: bool
+
+
+def _annotation_gamma(f: DemoFile) -> float:
+    annotation = f.attrs.get("annotation")
+    if not isinstance(annotation, dict) or "gamma" not in annotation:
+        raise UserInputError(f"{f.path}: data.annotation has no 'gamma' (expected the JSON written by `elegant annotate`)")
+    return float(annotation["gamma"])
+
+
+def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
+    demos = []
+    for demo in f:
+        where = f"{f.path}: data/{demo.name}"
+        if demo.task_key not in layouts:
+            raise UserInputError(f"{f.path}: data.state_layouts has no layout for task {demo.task_key} of {demo.name}")
+        width = sum(int(s) for _, s in layouts[demo.task_key])
+        t = demo.num_samples
+        if t == 0:
+            raise UserInputError(f"{where} has no steps")
+        for field, value, shape in (
+            ("obs/state", demo.obs, (t, width)),
+            ("next_obs/state", demo.next_obs, (t, width)),
+            ("elegance_reward", demo.elegance_reward, (t,)),
+            ("mc_return", demo.mc_return, (t,)),
+        ):
+            if value.shape != shape:
+                raise UserInputError(f"{where}/{field} has shape {value.shape}, expected {shape}")
+        demos.append(_RawDemo(
+            path=f.path, name=demo.name, task=demo.task_key,
+            obs=demo.obs, next_obs=demo.next_obs, actions=np.asarray(demo.actions, dtype=np.float32),
+            reward=np.asarray(demo.elegance_reward, dtype=np.float32), mc_return=np.asarray(demo.mc_return, dtype=np.float32),
+            success=bool(demo.rewards[-1] > 0),
+        ))
+    return demos
+
+
+def _check_returns(demos: list[_RawDemo], returns: np.ndarray, gamma: float) -> None:
+    start = 0
+    for d in demos:
+        mine = returns[start : start + len(d.reward)]
+        start += len(d.reward)
+        if not np.allclose(mine, d.mc_return, rtol=MC_RETURN_TOLERANCE, atol=MC_RETURN_TOLERANCE):
+            worst = int(np.argmax(np.abs(mine - d.mc_return)))
+            raise UserInputError(
+                f"{d.path}: data/{d.name}/mc_return differs from the discounted return-to-go of elegance_reward "
+                f"with gamma={gamma} at step {worst} ({d.mc_return[worst]:.6g} stored, {mine[worst]:.6g} expected)"
+            )
+
+
+def _column(values: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """TorchRL keeps rewards, flags and returns as (B, 1)."""
+    return torch.as_tensor(values).unsqueeze(-1)
+
+
+def load_transitions(paths: Sequence[str]) -> TransitionData:
+    """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions."""
+    if not paths:
+        raise UserInputError("no annotated HDF5 files given")
+    layouts: dict[str, list] = {}
+    gamma: float | None = None
+    demos: list[_RawDemo] = []
+    for path in paths:
+        with DemoFile(path, require_labels=True) as f:
+            file_gamma = _annotation_gamma(f)
+            if gamma is not None and file_gamma != gamma:
+                raise UserInputError(f"{f.path}: data.annotation gamma is {file_gamma}, but {paths[0]} uses {gamma}; annotate all files with one gamma")
+            gamma = file_gamma
+            for key, layout in f.state_layouts.items():
+                if key in layouts and [[str(n), int(s)] for n, s in layout] != [[str(n), int(s)] for n, s in layouts[key]]:
+                    raise UserInputError(f"{f.path}: data.state_layouts[{key!r}] differs from the layout of that task in an earlier file")
+                layouts.setdefault(key, layout)
+            demos += _read_demos(f, f.state_layouts)
+    if not demos:
+        raise UserInputError(f"{', '.join(paths)}: no demos to train on")
+    encoder = TaskFeatureEncoder(layouts)
+
+    obs = np.concatenate([encoder.encode(d.obs, d.task) for d in demos])
+    next_obs = np.concatenate([encoder.encode(d.next_obs, d.task) for d in demos])
+    actions = np.concatenate([d.actions for d in demos])
+    reward = torch.from_numpy(np.concatenate([d.reward for d in demos]))
+    last = np.zeros(len(reward), dtype=bool)
+    last[np.cumsum([len(d.reward) for d in demos]) - 1] = True
+    terminal = np.zeros_like(last)
+    terminal[last] = [d.success for d in demos]
+    done = torch.from_numpy(last)
+    mc_return = reward2go(reward, done, gamma, time_dim=-1)
+    _check_returns(demos, mc_return.numpy(), gamma)
+
+    normalization = Normalization.fit(obs, actions, encoder.state_dim)
+    transitions = TensorDict(
+        {
+            "observation": torch.from_numpy(normalization.observations(obs)),
+            "action": torch.from_numpy(normalization.actions(actions)),
+            "mc_return": _column(mc_return),
+            "next": {
+                "observation": torch.from_numpy(normalization.observations(next_obs)),
+                "reward": _column(reward),
+                "done": _column(done),
+                "terminated": _column(torch.from_numpy(terminal)),
+                "truncated": _column(torch.from_numpy(last & ~terminal)),
+            },
+        },
+        batch_size=[len(reward)],
+    )
+    return TransitionData(transitions, encoder, normalization, float(gamma), len(demos))
+
+
+def make_replay_buffer(transitions: TensorDict, batch_size: int, generator: torch.Generator) -> TensorDictReplayBuffer:
+    """All transitions in memory, sampled uniformly with replacement from `generator` (seed it for repeatability)."""
+    buffer = TensorDictReplayBuffer(
+        storage=LazyTensorStorage(len(transitions)),
+        sampler=RandomSampler(),
+        batch_size=batch_size,
+        generator=generator,
+    )
+    buffer.extend(transitions)
+    return buffer

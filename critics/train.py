@@ -1,0 +1,258 @@
+"""Offline Cal-QL training of the elegance critic: data, loop, checkpoints, resume, metrics, artifact.
+
+Output directory:
+    checkpoint.pt   everything a resumed run needs (written atomically every `checkpoint_every` steps
+                    and at the end): loss module state (actor, critics, target critics, temperatures),
+                    optimiser state, the torch RNG state (uniform and policy action draws) and the replay
+                    sampler's generator state, the step, the config and a fingerprint of the data;
+    metrics.csv     one row every `log_every` steps (appended as training goes; on resume, rows after
+                    the checkpoint's step are dropped, so the file matches an uninterrupted run);
+    critic.pt, critic.json   the final critic (see `critics.artifact`).
+
+A run killed at any point and resumed with `resume=True` continues from its last checkpoint to the same
+parameters as an uninterrupted run with the same arguments (same seed, same thread count).
+"""
+from __future__ import annotations
+
+import csv
+import io
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tqdm.auto import tqdm
+from torchrl.objectives import SoftUpdate
+
+from base_suites.atomic import atomic_write
+from base_suites.errors import UserInputError
+from critics.artifact import atomic_torch_save, save_critic, versions
+from critics.data import TransitionData, load_transitions, make_replay_buffer
+from critics.loss import CalQLLoss
+from critics.networks import TanhGaussianActor, TwinQNetwork
+
+CHECKPOINT_FORMAT = "libero-elegant/critic-checkpoint/1"
+CHECKPOINT_FILE = "checkpoint.pt"
+METRICS_FILE = "metrics.csv"
+# Arguments that may change between a run and its resumption (they do not affect the numbers).
+_RESUMABLE_CHANGES = ("steps", "checkpoint_every")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that determines the trained numbers (saved in the checkpoint and the artifact)."""
+
+    paths: list[str]
+    steps: int
+    batch_size: int = 256
+    seed: int = 0
+    n_actions: int = 10
+    hidden: list[int] = field(default_factory=lambda: [256, 256])
+    cql_weight: float = 5.0
+    temperature: float = 1.0
+    calibrate: bool = True
+    with_lagrange: bool = False
+    target_action_gap: float = 0.8
+    critic_lr: float = 3e-4
+    actor_lr: float = 1e-4
+    alpha_lr: float = 3e-4
+    tau: float = 0.005
+    log_every: int = 100
+    checkpoint_every: int = 1000
+
+    def validate(self) -> None:
+        for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise UserInputError(f"train-critic: {name} must be a positive integer, got {value!r}")
+        if not self.hidden or any(int(h) < 1 for h in self.hidden):
+            raise UserInputError(f"train-critic: hidden must list positive layer widths, got {self.hidden!r}")
+
+
+class _Run:
+    """The modules, optimiser and random state of one training run."""
+
+    def __init__(self, cfg: TrainConfig, data: TransitionData) -> None:
+        torch.manual_seed(cfg.seed)
+        critic = TwinQNetwork(data.obs_dim, data.action_dim, cfg.hidden)
+        actor = TanhGaussianActor(data.obs_dim, data.action_dim, cfg.hidden)
+        self.loss = CalQLLoss(
+            actor, critic, gamma=data.gamma, n_actions=cfg.n_actions, cql_weight=cfg.cql_weight,
+            temperature=cfg.temperature, calibrate=cfg.calibrate, with_lagrange=cfg.with_lagrange,
+            target_action_gap=cfg.target_action_gap,
+        )
+        self.updater = SoftUpdate(self.loss, tau=cfg.tau)
+        groups = [
+            {"params": list(self.loss.actor_network_params.values(True, True)), "lr": cfg.actor_lr},
+            {"params": list(self.loss.qvalue_network_params.values(True, True)), "lr": cfg.critic_lr},
+            {"params": [self.loss.log_alpha], "lr": cfg.alpha_lr},
+        ]
+        if cfg.with_lagrange:
+            groups.append({"params": [self.loss.log_alpha_prime], "lr": cfg.critic_lr})
+        self.optimizer = torch.optim.Adam(groups)
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+        self.buffer = make_replay_buffer(data.transitions, cfg.batch_size, self.generator)
+
+    def step(self) -> TensorDictBase:
+        """One gradient step on a fresh batch; returns the loss module's output (losses and diagnostics)."""
+        losses = self.loss(self.buffer.sample())
+        total = sum(v for k, v in losses.items() if k.startswith("loss_"))
+        self.optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        self.optimizer.step()
+        self.updater.step()
+        return losses
+
+    def state(self, step: int, cfg: TrainConfig, fingerprint: str) -> dict[str, Any]:
+        return {
+            "format": CHECKPOINT_FORMAT,
+            "step": step,
+            "config": asdict(cfg),
+            "fingerprint": fingerprint,
+            "loss": self.loss.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "torch_rng": torch.get_rng_state(),
+            "sampler_rng": self.generator.get_state(),
+            "versions": versions(),
+        }
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.loss.load_state_dict(state["loss"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        torch.set_rng_state(state["torch_rng"])
+        self.generator.set_state(state["sampler_rng"])
+
+
+def _read_checkpoint(path: str) -> dict[str, Any]:
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # truncated or garbled files raise assorted errors from torch's unpickler/zip reader
+        raise UserInputError(f"{path}: corrupt checkpoint ({exc.__class__.__name__}); delete it to start over") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise UserInputError(f"{path}: not a critic training checkpoint (field 'format' is not {CHECKPOINT_FORMAT!r})")
+    return state
+
+
+def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
+    saved = {k: v for k, v in state["config"].items() if k not in _RESUMABLE_CHANGES}
+    wanted = {k: v for k, v in asdict(cfg).items() if k not in _RESUMABLE_CHANGES}
+    changed = sorted(k for k in set(saved) | set(wanted) if saved.get(k) != wanted.get(k))
+    if changed:
+        raise UserInputError(f"{path}: cannot resume with different {', '.join(changed)} (checkpoint has "
+                             + ", ".join(f"{k}={saved.get(k)!r}" for k in changed) + ")")
+    if state["fingerprint"] != fingerprint:
+        raise UserInputError(f"{path}: the training data changed since this checkpoint was written (fingerprint differs)")
+
+
+class _MetricsLog:
+    """metrics.csv: a header, then one row per logged step; appended and flushed as training goes."""
+
+    def __init__(self, path: str, columns: list[str], keep_until: int | None) -> None:
+        self.path, self.columns = path, ["step", *columns]
+        rows = self._rows_until(keep_until) if keep_until is not None else []
+        buffer = io.StringIO()
+        writer = csv.writer(buffer)
+        writer.writerow(self.columns)
+        writer.writerows(rows)
+        atomic_write(path, buffer.getvalue())
+
+    def _rows_until(self, step: int) -> list[list[str]]:
+        if not os.path.exists(self.path):
+            return []
+        with open(self.path, newline="") as f:
+            rows = list(csv.reader(f))[1:]
+        return [r for r in rows if len(r) == len(self.columns) and r[0].isdigit() and int(r[0]) <= step]
+
+    def append(self, step: int, values: dict[str, float]) -> None:
+        with open(self.path, "a", newline="") as f:
+            csv.writer(f).writerow([step, *(f"{values[c]:.6g}" for c in self.columns[1:])])
+
+
+def train_critic(
+    paths: Sequence[str],
+    out: str,
+    *,
+    steps: int,
+    batch_size: int = 256,
+    seed: int = 0,
+    resume: bool = False,
+    checkpoint_every: int = 1000,
+    n_actions: int = 10,
+    progress: bool = True,
+    hidden: Sequence[int] = (256, 256),
+    cql_weight: float = 5.0,
+    calibrate: bool = True,
+    with_lagrange: bool = False,
+    log_every: int = 100,
+) -> dict[str, Any]:
+    """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
+
+    paths: annotated files (`elegant annotate`), all with the same gamma; steps: total gradient steps (a
+    resumed run continues up to it); batch_size: transitions per step; seed: network init, replay sampling
+    and action draws; resume: continue from out/checkpoint.pt (else a run refuses a directory that holds
+    one); checkpoint_every / log_every: steps between checkpoints / metrics rows; n_actions: N of the
+    uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
+    cql_weight, calibrate, with_lagrange: see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
+
+    Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
+    checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
+    steps_per_second (of this invocation), and final (the last logged value of every loss and diagnostic).
+    """
+    cfg = TrainConfig(
+        paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
+        hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
+        log_every=log_every, checkpoint_every=checkpoint_every,
+    )
+    cfg.validate()
+    os.makedirs(out, exist_ok=True)
+    ckpt_path = os.path.join(out, CHECKPOINT_FILE)
+    if os.path.exists(ckpt_path) and not resume:
+        raise UserInputError(f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory")
+
+    data = load_transitions(cfg.paths)
+    fingerprint = data.fingerprint()
+    run = _Run(cfg, data)
+    start = 0
+    resumed_from = None
+    if resume and os.path.exists(ckpt_path):
+        state = _read_checkpoint(ckpt_path)
+        _check_resumable(ckpt_path, state, cfg, fingerprint)
+        if int(state["step"]) > cfg.steps:
+            raise UserInputError(f"{ckpt_path}: checkpoint is at step {state['step']}, beyond steps={cfg.steps}; ask for at least that many")
+        run.restore(state)
+        start = resumed_from = int(state["step"])
+
+    metrics = _MetricsLog(os.path.join(out, METRICS_FILE), run.loss.out_keys, keep_until=resumed_from)
+    last: dict[str, float] = {}
+    began = time.perf_counter()
+    bar = tqdm(total=cfg.steps, initial=start, disable=not progress, desc="train-critic", unit="step")
+    for step in range(start + 1, cfg.steps + 1):
+        losses = run.step()
+        if step % cfg.log_every == 0 or step == cfg.steps:
+            last = {k: float(v.detach()) for k, v in losses.items()}
+            metrics.append(step, last)
+            bar.set_postfix({k.removeprefix("loss_"): f"{last[k]:.3g}" for k in ("loss_qvalue", "loss_cql", "loss_actor", "alpha")})
+        if step % cfg.checkpoint_every == 0 or step == cfg.steps:
+            atomic_torch_save(ckpt_path, run.state(step, cfg, fingerprint))
+        bar.update(1)
+    bar.close()
+    seconds = time.perf_counter() - began
+
+    save_critic(out, run.loss.get_stateful_net("qvalue_network"), data.encoder, data.normalization,
+                gamma=data.gamma, training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)})
+    trained = max(cfg.steps - start, 0)
+    return {
+        "out": out,
+        "steps": cfg.steps,
+        "resumed_from": resumed_from,
+        "transitions": len(data.transitions),
+        "demos": data.n_demos,
+        "tasks": data.encoder.tasks,
+        "gamma": data.gamma,
+        "seconds": seconds,
+        "steps_per_second": trained / seconds if trained and seconds > 0 else None,
+        "final": last,
+    }

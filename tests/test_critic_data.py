@@ -1,0 +1,162 @@
+"""The critic's data path: annotated HDF5 -> normalised transitions -> seeded replay buffer.
+
+`write_annotated` (random arrays in the documented layout) is also used by tests/test_critic_train.py.
+"""
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from annotations import CRITERIA, SEGMENT_LENGTH, Demo, DemoWriter
+from base_suites.errors import UserInputError
+from critics import Normalization, load_transitions, make_replay_buffer
+
+ROBOT = [["robot0_eef_pos", 3], ["robot0_eef_quat", 4], ["robot0_gripper_qpos", 2], ["robot0_joint_pos", 7]]
+
+
+def task_layout(task_index: int) -> list[list]:
+    """Task i has i + 1 objects, so the tasks' state widths differ (padding is exercised)."""
+    return ROBOT + [[f"obj{k}/{part}", size] for k in range(task_index + 1) for part, size in (("pos", 3), ("quat", 4))]
+
+
+def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
+    out, acc = np.zeros(len(rewards)), 0.0
+    for t in reversed(range(len(rewards))):
+        acc = rewards[t] + gamma * acc
+        out[t] = acc
+    return out
+
+
+def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9, labelled: bool = True,
+                    lengths: tuple[int, int] = (30, 60), corrupt_return: bool = False) -> str:
+    """An annotated file of two libero_object tasks with random states, actions and ITC labels.
+
+    Demo i belongs to task i % 2 and succeeds when i % 3 != 2; actions use [-0.5, 0.5] in every dimension.
+    """
+    rng = np.random.default_rng(seed)
+    attrs = {"annotation": {"schema_version": 1, "gamma": gamma, "segment_length": SEGMENT_LENGTH, "itc_params": {}}} if labelled else {}
+    writer = DemoWriter(str(path), attrs)
+    for i in range(n_demos):
+        task = i % 2
+        layout = task_layout(task)
+        t = int(rng.integers(*lengths))
+        states = rng.normal(size=(t + 1, sum(s for _, s in layout))).astype(np.float32)
+        success = i % 3 != 2
+        rewards = np.zeros(t, np.float32)
+        rewards[-1] = float(success)
+        dones = np.zeros(t, np.uint8)
+        dones[-1] = 1
+        demo = Demo(
+            name="", actions=rng.uniform(-0.5, 0.5, size=(t, 7)), states=rng.normal(size=(t, 4)),
+            obs=states[:-1], next_obs=states[1:], rewards=rewards, dones=dones,
+            attrs={"suite": "libero_object", "task_index": task, "task_name": f"task {task}", "success": success},
+        )
+        if labelled:
+            itc = {c: rng.random(t) > 0.01 for c in CRITERIA}
+            n_seg = -(-t // SEGMENT_LENGTH)
+            demo.itc = itc
+            demo.itc_segments = {c: np.array([itc[c][k * SEGMENT_LENGTH:(k + 1) * SEGMENT_LENGTH].all() for k in range(n_seg)]) for c in CRITERIA}
+            demo.elegance_reward = np.logical_and.reduce([itc[c] for c in CRITERIA]).astype(np.float32)
+            demo.mc_return = discounted_returns(demo.elegance_reward, gamma).astype(np.float32) + (0.5 if corrupt_return else 0.0)
+        writer.append(demo, layout)
+    return writer.finish()
+
+
+@pytest.fixture()
+def annotated(tmp_path) -> str:
+    return write_annotated(tmp_path / "train.hdf5")
+
+
+def read_raw(path: str) -> list[dict]:
+    with h5py.File(path, "r") as f:
+        names = sorted((n for n in f["data"] if n.startswith("demo_")), key=lambda n: int(n.split("_")[1]))
+        return [{k: f["data"][n][k][()] for k in ("actions", "obs/state", "next_obs/state", "elegance_reward", "rewards")}
+                | {"task": int(f["data"][n].attrs["task_index"])} for n in names]
+
+
+def test_transitions_follow_the_documented_layout(annotated):
+    data = load_transitions([annotated])
+    td = data.transitions
+    raw = read_raw(annotated)
+    total = sum(len(d["actions"]) for d in raw)
+    assert td.batch_size == torch.Size([total])
+    assert data.encoder.tasks == ["libero_object/0", "libero_object/1"]
+    width = data.encoder.state_dim
+    assert width == 16 + 14 and data.obs_dim == width + 2 and data.action_dim == 7
+    for key in ("mc_return", ("next", "reward"), ("next", "done"), ("next", "terminated"), ("next", "truncated")):
+        assert td.get(key).shape == (total, 1), key
+    assert td["observation"].dtype == torch.float32 and td["next", "done"].dtype == torch.bool
+
+    # normalised state part, untouched one-hot
+    obs = td["observation"].numpy()
+    assert np.allclose(obs[:, :width].mean(0), 0, atol=1e-4) and np.allclose(obs[:, :width].std(0), 1, atol=1e-3)
+    tasks = np.concatenate([[d["task"]] * len(d["actions"]) for d in raw])
+    assert np.array_equal(obs[:, width:], np.eye(2, dtype=np.float32)[tasks])
+    # states and next states stay paired, and normalisation inverts to the raw numbers
+    raw_obs = data.normalization.obs_mean + obs[:, :width] * data.normalization.obs_std
+    d0 = raw[0]["obs/state"]
+    assert np.allclose(raw_obs[: len(d0), : d0.shape[1]], d0, atol=1e-5)
+    assert np.allclose(raw_obs[: len(d0), d0.shape[1]:], 0, atol=1e-5)  # padding of the narrower task
+    assert np.allclose(td["next", "observation"][: len(d0) - 1].numpy(), obs[1: len(d0)], atol=1e-6)
+
+    # actions mapped onto [-1, 1] by the dataset's bounds
+    actions = td["action"].numpy()
+    assert np.allclose(actions.min(0), -1) and np.allclose(actions.max(0), 1)
+    raw_actions = np.concatenate([d["actions"] for d in raw])
+    assert np.allclose(data.normalization.action_low, raw_actions.min(0)) and np.allclose(data.normalization.action_high, raw_actions.max(0))
+
+
+def test_episode_ends_and_returns(annotated):
+    data = load_transitions([annotated])
+    td = data.transitions
+    raw = read_raw(annotated)
+    ends = np.cumsum([len(d["actions"]) for d in raw]) - 1
+    done = td["next", "done"].squeeze(-1).numpy()
+    assert np.array_equal(np.flatnonzero(done), ends)
+    success = np.array([d["rewards"][-1] > 0 for d in raw])
+    assert np.array_equal(np.flatnonzero(td["next", "terminated"].squeeze(-1).numpy()), ends[success])
+    assert np.array_equal(np.flatnonzero(td["next", "truncated"].squeeze(-1).numpy()), ends[~success])
+    expected = np.concatenate([discounted_returns(d["elegance_reward"], 0.9) for d in raw])
+    assert np.allclose(td["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
+    assert np.allclose(td["mc_return"].squeeze(-1).numpy()[ends], np.concatenate([d["elegance_reward"][-1:] for d in raw]))
+    assert data.gamma == 0.9
+
+
+def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):
+    plain = write_annotated(tmp_path / "plain.hdf5", labelled=False)
+    with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):
+        load_transitions([plain])
+    wrong = write_annotated(tmp_path / "wrong.hdf5", corrupt_return=True)
+    with pytest.raises(UserInputError, match=r"wrong.hdf5: data/demo_0/mc_return differs"):
+        load_transitions([wrong])
+    other_gamma = write_annotated(tmp_path / "other.hdf5", gamma=0.5)
+    with pytest.raises(UserInputError, match="gamma"):
+        load_transitions([write_annotated(tmp_path / "a.hdf5"), other_gamma])
+
+
+def test_replay_buffer_sampling_is_seeded(annotated):
+    data = load_transitions([annotated])
+
+    def draws(seed: int) -> list[torch.Tensor]:
+        buffer = make_replay_buffer(data.transitions, 16, torch.Generator().manual_seed(seed))
+        return [buffer.sample()["action"] for _ in range(3)]
+
+    a, b, c = draws(0), draws(0), draws(1)
+    assert all(torch.equal(x, y) for x, y in zip(a, b))
+    assert not all(torch.equal(x, y) for x, y in zip(a, c))
+    assert a[0].shape == (16, 7)
+
+
+def test_normalization_round_trips_and_guards_constant_dimensions():
+    obs = np.stack([np.arange(6.0), np.full(6, 3.0), np.ones(6)], axis=1)  # last column: a one-hot (not normalised)
+    actions = np.stack([np.linspace(-0.5, 0.5, 6), np.zeros(6)], axis=1)
+    norm = Normalization.fit(obs, actions, state_dim=2)
+    assert norm.obs_std[1] == 1.0  # constant: only shifted
+    assert np.allclose(norm.observations(obs)[:, 1], 0) and np.array_equal(norm.observations(obs)[:, 2], obs[:, 2])
+    mapped = norm.actions(actions)
+    assert np.allclose(mapped[:, 0], np.linspace(-1, 1, 6)) and np.allclose(mapped[:, 1], 0)
+    assert np.allclose(norm.actions([[2.0, 0.5]]), [[1.0, 1.0]])  # outside the data's bounds: clipped
+    again = Normalization.from_dict(norm.to_dict())
+    assert all(np.array_equal(getattr(again, k), getattr(norm, k)) for k in ("obs_mean", "obs_std", "action_low", "action_high"))

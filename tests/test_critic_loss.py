@@ -1,0 +1,195 @@
+"""CalQLLoss, tested the TorchRL way: tiny networks, gradient isolation per term, no input mutation,
+state_dict round trip; plus the two places where it departs from the stock CQLLoss (the logsumexp's
+axis, every sampled action scored at s) and Cal-QL's calibration on hand-made numbers."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.objectives import SoftUpdate
+
+from critics import CalQLLoss, TanhGaussianActor, TwinQNetwork, cql_logsumexp
+
+OBS, ACT, BATCH, N = 5, 3, 6, 4
+
+
+def make_loss(seed: int = 0, **kwargs) -> CalQLLoss:
+    torch.manual_seed(seed)
+    return CalQLLoss(TanhGaussianActor(OBS, ACT, (8,)), TwinQNetwork(OBS, ACT, (8, 8)), n_actions=N, gamma=0.9, **kwargs)
+
+
+def make_batch(seed: int = 1, mc_return: float | None = None) -> TensorDict:
+    g = torch.Generator().manual_seed(seed)
+    mc = torch.rand(BATCH, 1, generator=g) if mc_return is None else torch.full((BATCH, 1), mc_return)
+    return TensorDict({
+        "observation": torch.randn(BATCH, OBS, generator=g),
+        "action": torch.rand(BATCH, ACT, generator=g) * 2 - 1,
+        "mc_return": mc,
+        "next": {
+            "observation": torch.randn(BATCH, OBS, generator=g),
+            "reward": torch.rand(BATCH, 1, generator=g),
+            "terminated": torch.tensor([[True], [False]] * (BATCH // 2)),
+        },
+    }, batch_size=[BATCH])
+
+
+def param_groups(loss: CalQLLoss) -> dict[str, list[torch.Tensor]]:
+    groups = {
+        "actor": list(loss.actor_network_params.values(True, True)),
+        "critic": list(loss.qvalue_network_params.values(True, True)),
+        "alpha": [loss.log_alpha],
+    }
+    if loss.with_lagrange:
+        groups["alpha_prime"] = [loss.log_alpha_prime]
+    return groups
+
+
+@pytest.mark.parametrize("term, owner", [
+    ("loss_actor", "actor"), ("loss_qvalue", "critic"), ("loss_cql", "critic"), ("loss_alpha", "alpha"), ("loss_alpha_prime", "alpha_prime"),
+])
+def test_each_term_sends_gradients_only_to_its_own_parameters(term, owner):
+    loss = make_loss(with_lagrange=True)
+    out = loss(make_batch())
+    out[term].backward()
+    for name, params in param_groups(loss).items():
+        touched = any(p.grad is not None and p.grad.abs().sum() > 0 for p in params)
+        assert touched == (name == owner), (term, name)
+    assert all(not p.requires_grad for p in loss.target_qvalue_network_params.values(True, True))
+
+
+def test_input_tensordict_is_not_mutated():
+    batch = make_batch()
+    before = batch.clone()
+    make_loss()(batch)
+    assert set(batch.keys(True, True)) == set(before.keys(True, True))
+    assert (batch == before).all()
+
+
+def test_state_dict_round_trips():
+    trained = make_loss(seed=0, with_lagrange=True)
+    other = make_loss(seed=5, with_lagrange=True)
+    batch = make_batch()
+    opt = torch.optim.SGD(trained.parameters(), lr=0.1)
+    sum(v for k, v in trained(batch).items() if k.startswith("loss_")).backward()
+    opt.step()
+    other.load_state_dict(trained.state_dict())
+    for key, value in trained.state_dict().items():
+        assert torch.equal(value, other.state_dict()[key]), key
+    torch.manual_seed(3)
+    a = trained(batch)
+    torch.manual_seed(3)
+    b = other(batch)
+    assert all(torch.equal(a[k], b[k]) for k in a.keys())
+
+
+def test_logsumexp_is_over_each_states_sampled_actions():
+    g = torch.Generator().manual_seed(0)
+    critics, states, n_uniform, n_policy, action_dim = 2, 3, 4, 8, 7
+    q_uniform = torch.randn(critics, states, n_uniform, generator=g, dtype=torch.float64)
+    q_policy = torch.randn(critics, states, n_policy, generator=g, dtype=torch.float64)
+    log_prob = torch.randn(states, n_policy, generator=g, dtype=torch.float64)
+    got = cql_logsumexp(q_uniform, q_policy, log_prob, None, action_dim=action_dim, temperature=2.0)
+    assert got.shape == (critics, states)
+    for c in range(critics):
+        for s in range(states):
+            values = [(q_uniform[c, s, j].item() - action_dim * math.log(0.5)) / 2.0 for j in range(n_uniform)]
+            values += [(q_policy[c, s, j].item() - log_prob[s, j].item()) / 2.0 for j in range(n_policy)]
+            assert got[c, s].item() == pytest.approx(2.0 * math.log(sum(math.exp(v) for v in values)), rel=1e-12)
+
+
+def test_calibration_clips_policy_q_from_below_by_the_mc_return():
+    # one critic, two states, one uniform action and two policy actions each
+    q_uniform = torch.tensor([[[0.0], [1.0]]], dtype=torch.float64)
+    q_policy = torch.tensor([[[-5.0, 2.0], [4.0, 6.0]]], dtype=torch.float64)
+    log_prob = torch.zeros(2, 2, dtype=torch.float64)
+    mc_return = torch.tensor([3.0, 1.0], dtype=torch.float64)
+    got = cql_logsumexp(q_uniform, q_policy, log_prob, mc_return, action_dim=1)
+    uniform = -math.log(0.5)  # subtracting log density 0.5 on [-1, 1]
+    # state 0: -5 and 2 are both below the return 3 and lifted to it; state 1: 4 and 6 are above 1, unchanged
+    assert got[0, 0].item() == pytest.approx(math.log(math.exp(0 + uniform) + 2 * math.exp(3.0)))
+    assert got[0, 1].item() == pytest.approx(math.log(math.exp(1 + uniform) + math.exp(4.0) + math.exp(6.0)))
+    plain = cql_logsumexp(q_uniform, q_policy, log_prob, None, action_dim=1)
+    assert plain[0, 0].item() == pytest.approx(math.log(math.exp(uniform) + math.exp(-5.0) + math.exp(2.0)))
+    assert plain[0, 1].item() == pytest.approx(got[0, 1].item())
+
+
+def action_blind(loss: CalQLLoss) -> CalQLLoss:
+    """Zero the critics' action weights (and the targets'), so Q(s, a) depends on s only."""
+    with torch.no_grad():
+        loss.qvalue_network_params["action_weight"].zero_()
+        loss.target_qvalue_network_params["action_weight"].zero_()
+    return loss
+
+
+def test_every_sampled_action_is_scored_at_s():
+    loss = action_blind(make_loss())
+    terms = loss.terms(make_batch())
+    # Q ignores the action: if the pi(.|s') actions were scored at s' (as the stock CQLLoss does),
+    # they would differ from Q(s, a_data); scored at s they all equal it.
+    assert terms.q_policy.shape == (2, BATCH, 2 * N) and terms.q_uniform.shape == (2, BATCH, N)
+    assert torch.allclose(terms.q_policy, terms.q_data.unsqueeze(-1).expand_as(terms.q_policy))
+    assert torch.allclose(terms.q_uniform, terms.q_data.unsqueeze(-1).expand_as(terms.q_uniform))
+
+
+def test_calibration_inside_the_module():
+    calibrated, plain = action_blind(make_loss(calibrate=True)), action_blind(make_loss(calibrate=False))
+    for mc, raises_loss in ((100.0, True), (-100.0, False)):
+        torch.manual_seed(7)
+        a = calibrated(make_batch(mc_return=mc))
+        torch.manual_seed(7)
+        b = plain(make_batch(mc_return=mc))
+        assert (a["loss_cql"] > b["loss_cql"] + 1.0) if raises_loss else torch.equal(a["loss_cql"], b["loss_cql"])
+        assert a["calibrated_fraction"].item() == (1.0 if raises_loss else 0.0)
+
+
+def test_td_target_bootstraps_only_from_non_terminal_states():
+    loss = action_blind(make_loss())
+    batch = make_batch()
+    terms = loss.terms(batch)
+    with torch.no_grad(), loss.target_qvalue_network_params.data.to_module(loss.qvalue_network):
+        next_q = loss.qvalue_network(batch["next", "observation"], torch.zeros(BATCH, 1, ACT)).amin(0).squeeze(-1)
+    reward, terminated = batch["next", "reward"].squeeze(-1), batch["next", "terminated"].squeeze(-1)
+    expected = torch.where(terminated, reward, reward + 0.9 * next_q)
+    assert torch.allclose(terms.target, expected)
+
+
+def test_soft_update_moves_targets_towards_the_critics():
+    loss = make_loss()
+    updater = SoftUpdate(loss, tau=0.25)
+    with torch.no_grad():
+        loss.qvalue_network_params["first_bias"].add_(1.0)
+    before = loss.target_qvalue_network_params["first_bias"].clone()
+    updater.step()
+    after = loss.target_qvalue_network_params["first_bias"]
+    assert torch.allclose(after, before + 0.25 * (loss.qvalue_network_params["first_bias"] - before))
+
+
+def test_keys_are_configurable():
+    loss = make_loss()
+    batch = make_batch().rename_key_("observation", "obs").rename_key_(("next", "observation"), ("next", "obs"))
+    loss.set_keys(observation="obs")
+    assert "obs" in loss.in_keys
+    assert set(loss(batch).keys()) == set(loss.out_keys)
+    with pytest.raises(ValueError):
+        loss.set_keys(not_a_key="x")
+
+
+@pytest.mark.parametrize("hidden, batch", [((8, 8), 40), ((6, 5, 4), 17)])
+def test_fused_critic_pass_matches_autograd(hidden, batch):
+    """The twin critic's hand-written chunked backward (used when only the weights need gradients)
+    gives autograd's gradients; batches that are not a multiple of the chunk size included."""
+    torch.manual_seed(0)
+    net = TwinQNetwork(OBS, ACT, hidden).double()
+    obs = torch.randn(batch, OBS, dtype=torch.float64)
+    actions = torch.rand(batch, 31, ACT, dtype=torch.float64) * 2 - 1
+    weight = torch.randn(2, batch, 31, dtype=torch.float64)
+    (net(obs, actions) * weight).sum().backward()  # fused: inputs need no gradient
+    fused = [p.grad.clone() for p in net.parameters()]
+    net.zero_grad()
+    q = net(obs, actions.clone().requires_grad_())  # autograd: the actions need a gradient
+    (q * weight).sum().backward()
+    assert q.grad_fn.name() != "_FusedTwinMLPBackward"
+    for a, b in zip(fused, (p.grad for p in net.parameters())):
+        assert torch.allclose(a, b, rtol=1e-10, atol=1e-12)

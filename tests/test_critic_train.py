@@ -1,0 +1,175 @@
+"""Training the critic end to end on a tiny annotated file: artifact, metrics, resume after a real kill,
+loading, run-time scoring, held-out evaluation, and the refusals users hit."""
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from base_suites.errors import UserInputError
+from critics import auroc, evaluate_critic, load, train_critic
+from test_critic_data import task_layout, write_annotated
+
+TINY = {"batch_size": 32, "hidden": (16, 16), "n_actions": 3, "progress": False}
+
+
+@pytest.fixture(scope="module")
+def annotated(tmp_path_factory) -> str:
+    return write_annotated(tmp_path_factory.mktemp("critic") / "train.hdf5")
+
+
+@pytest.fixture(scope="module")
+def trained(annotated, tmp_path_factory) -> tuple[str, dict]:
+    out = str(tmp_path_factory.mktemp("critic") / "run")
+    return out, train_critic([annotated], out, steps=6, log_every=2, checkpoint_every=3, **TINY)
+
+
+def metadata(task_index: int, layout=None) -> dict:
+    return {"suite": "libero_object", "task_index": task_index, "state_layout": layout or task_layout(task_index)}
+
+
+def test_training_writes_artifact_metrics_and_summary(trained):
+    out, summary = trained
+    assert sorted(os.listdir(out)) == ["checkpoint.pt", "critic.json", "critic.pt", "metrics.csv"]
+    assert summary["steps"] == 6 and summary["resumed_from"] is None and summary["demos"] == 6
+    assert summary["tasks"] == ["libero_object/0", "libero_object/1"] and summary["gamma"] == 0.9
+    assert np.isfinite(list(summary["final"].values())).all()
+    with open(os.path.join(out, "metrics.csv")) as f:
+        rows = list(csv.DictReader(f))
+    assert [r["step"] for r in rows] == ["2", "4", "6"]
+    assert {"loss_actor", "loss_qvalue", "loss_cql", "loss_alpha", "alpha"} <= set(rows[0])
+    assert float(rows[-1]["loss_cql"]) == pytest.approx(summary["final"]["loss_cql"], rel=1e-5)
+    critic = load(out)
+    trained_params = torch.load(os.path.join(out, "checkpoint.pt"), weights_only=True)["loss"]
+    for key, value in critic.network.state_dict().items():  # the artifact holds the final critics
+        assert torch.equal(value, trained_params[f"qvalue_network_params.{key}"]), key
+    config = critic.config
+    assert set(config["versions"]) == {"torch", "torchrl", "tensordict", "libero-elegant"}
+    assert config["training"]["steps"] == 6 and config["encoder"]["layouts"]["libero_object/1"] == task_layout(1)
+
+
+@pytest.mark.parametrize("task", [0, 1])
+def test_loaded_critic_scores_raw_states_and_actions(trained, task):
+    critic = load(trained[0]).bind(metadata(task))
+    rng = np.random.default_rng(0)
+    state = rng.normal(size=sum(s for _, s in task_layout(task)))
+    actions = rng.uniform(-0.5, 0.5, size=(16, 7))
+    q = critic.q(state, actions)
+    assert q.shape == (16,) and q.dtype == np.float32
+    batched = critic.q(np.stack([state, state * 2]), np.stack([actions, actions]))
+    assert batched.shape == (2, 16) and np.allclose(batched[0], q, atol=1e-5)
+    assert not np.allclose(batched[1], q)
+    # the same numbers through the saved module: encode (pad + one-hot), normalise, map actions, min over twins
+    norm, encoder = critic.normalization, critic.encoder
+    obs = norm.observations(encoder.encode(state, f"libero_object/{task}"))
+    with torch.no_grad():
+        by_hand = critic.network(torch.from_numpy(obs)[None], torch.from_numpy(norm.actions(actions))[None]).amin(0)[0]
+    assert np.allclose(q, by_hand.numpy(), atol=1e-5)
+    with pytest.raises(UserInputError, match="Critic.q expects state"):
+        critic.q(np.append(state, 0.0), actions)
+
+
+def test_bind_refuses_an_unknown_task_or_another_layout(trained):
+    critic = load(trained[0])
+    with pytest.raises(UserInputError, match="observation layout of env task libero_object/0 differs"):
+        critic.bind(metadata(0, task_layout(1)))
+    with pytest.raises(UserInputError, match="libero_object/7"):
+        critic.bind(metadata(7))
+    with pytest.raises(RuntimeError, match="bind"):
+        critic.q(np.zeros(23), np.zeros((2, 7)))
+
+
+def test_resume_after_a_kill_equals_an_uninterrupted_run(annotated, tmp_path):
+    killed, straight = str(tmp_path / "killed"), str(tmp_path / "straight")
+    child = textwrap.dedent(f"""
+        import torch
+        torch.set_num_threads(1)
+        from critics import train_critic
+        train_critic([{annotated!r}], {killed!r}, steps=10**6, log_every=1, checkpoint_every=4, **{TINY!r})
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", child], stderr=subprocess.PIPE)
+    ckpt = os.path.join(killed, "checkpoint.pt")
+    deadline = time.monotonic() + 120
+    while not os.path.exists(ckpt):
+        assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+        assert time.monotonic() < deadline, "no checkpoint within 120 s"
+        time.sleep(0.05)
+    time.sleep(0.3)  # let it run past the checkpoint: the kill loses those steps
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    stopped_at = torch.load(ckpt, weights_only=True)["step"]
+    total = stopped_at + 5
+
+    resumed = train_critic([annotated], killed, steps=total, resume=True, log_every=1, checkpoint_every=4, **TINY)
+    assert resumed["resumed_from"] == stopped_at
+    train_critic([annotated], straight, steps=total, log_every=1, checkpoint_every=4, **TINY)
+
+    a, b = (torch.load(os.path.join(d, "checkpoint.pt"), weights_only=True) for d in (killed, straight))
+    assert a["step"] == b["step"] == total
+    assert a["loss"].keys() == b["loss"].keys()
+    for key in a["loss"]:
+        assert torch.equal(a["loss"][key], b["loss"][key]), key
+    assert torch.equal(a["torch_rng"], b["torch_rng"]) and torch.equal(a["sampler_rng"], b["sampler_rng"])
+    with open(os.path.join(killed, "metrics.csv")) as fa, open(os.path.join(straight, "metrics.csv")) as fb:
+        assert fa.read() == fb.read()
+
+
+def test_evaluate_critic_counts_and_ranks(trained, annotated):
+    report = evaluate_critic(trained[0], [annotated])
+    assert report["n_elegant"] + report["n_violated"] == report["transitions"] == trained[1]["transitions"]
+    assert report["n_elegant"] > 0 and report["n_violated"] > 0 and 0.0 <= report["auroc"] <= 1.0
+    assert set(report["per_criterion"]) == {"sequence", "pose_accuracy", "alignment", "collision"}
+    for c, r in report["per_criterion"].items():
+        assert r["n_kept"] >= report["n_elegant"] and r["n_kept"] + r["n_violated"] == report["transitions"], c
+
+
+def test_auroc_on_hand_made_scores():
+    assert auroc([3.0, 2.0], [1.0, 2.0]) == pytest.approx(3.5 / 4)  # one tie counts half
+    assert auroc([1.0], [2.0, 3.0]) == 0.0 and auroc([5.0, 6.0], [1.0]) == 1.0
+    assert auroc([], [1.0]) is None
+
+
+def test_refusals(trained, annotated, tmp_path):
+    out, _ = trained
+    with pytest.raises(UserInputError, match="no such critic directory"):
+        load(tmp_path / "missing")
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    with pytest.raises(UserInputError, match="missing critic.json"):
+        load(broken)
+    for name in ("critic.json", "critic.pt"):
+        with open(os.path.join(out, name), "rb") as f:
+            (broken / name).write_bytes(f.read())
+    (broken / "critic.pt").write_bytes(b"not a torch file")
+    with pytest.raises(UserInputError, match=r"broken/critic.pt: corrupt"):
+        load(broken)
+    (broken / "critic.json").write_text("{ truncated")
+    with pytest.raises(UserInputError, match=r"broken/critic.json: corrupt"):
+        load(broken)
+
+    unlabelled = write_annotated(tmp_path / "plain.hdf5", labelled=False)
+    with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):
+        train_critic([unlabelled], str(tmp_path / "run"), steps=2, **TINY)
+    with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):
+        evaluate_critic(out, [unlabelled])
+
+    run = str(tmp_path / "again")
+    train_critic([annotated], run, steps=2, **TINY)
+    with pytest.raises(UserInputError, match="checkpoint.pt exists"):
+        train_critic([annotated], run, steps=4, **TINY)
+    with pytest.raises(UserInputError, match="cannot resume with different seed"):
+        train_critic([annotated], run, steps=4, resume=True, seed=1, **TINY)
+    with open(os.path.join(run, "checkpoint.pt"), "r+b") as f:
+        f.truncate(100)
+    with pytest.raises(UserInputError, match="checkpoint.pt: corrupt checkpoint"):
+        train_critic([annotated], run, steps=4, resume=True, **TINY)
+    with pytest.raises(UserInputError, match="steps must be a positive integer"):
+        train_critic([annotated], str(tmp_path / "zero"), steps=0, **TINY)
