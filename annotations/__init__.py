@@ -2,8 +2,11 @@
 from annotations.dataset import Demo, DemoFile, DemoWriter, read_attrs
 from annotations.features import TaskFeatureEncoder
 from annotations.format import ANNOTATION_SCHEMA_VERSION, CRITERIA, FORMAT_VERSION, SEGMENT_LENGTH, task_key
+from annotations.human_labels import HumanLabel, apply_human_labels, export_segment_labels, read_human_labels
+from annotations.labelling import annotate_file, discounted_return_to_go, replay_verdict
 
 __all__ = [
-    "ANNOTATION_SCHEMA_VERSION", "CRITERIA", "Demo", "DemoFile", "DemoWriter", "FORMAT_VERSION", "SEGMENT_LENGTH",
-    "TaskFeatureEncoder", "read_attrs", "task_key",
+    "ANNOTATION_SCHEMA_VERSION", "CRITERIA", "Demo", "DemoFile", "DemoWriter", "FORMAT_VERSION", "HumanLabel",
+    "SEGMENT_LENGTH", "TaskFeatureEncoder", "annotate_file", "apply_human_labels", "discounted_return_to_go",
+    "export_segment_labels", "read_attrs", "read_human_labels", "replay_verdict", "task_key",
 ]

@@ -99,6 +99,40 @@ def _import_libero(args: argparse.Namespace) -> dict:
     return import_libero_hdf5(args.file, args.out, suite=args.suite, task=args.task)
 
 
+def _annotate_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("demos", help="demos HDF5 (from elegant demos or import-libero)")
+    p.add_argument("--out", help="annotated HDF5 (default: DEMOS with .annotated.hdf5)")
+    p.add_argument("--labels", help="human labels CSV: demo,start_frame,end_frame,criterion,label")
+    p.add_argument("--specs", help="directory of per-task YAML spec overrides (<suite>/<task>.yaml)")
+    p.add_argument("--gamma", type=float, default=0.99, help="discount of the Monte-Carlo return")
+    p.add_argument("--export-labels", help="also write the final segment labels as CSV here")
+    p.add_argument("--resume", action="store_true")
+
+
+@command("annotate", "label demos with the four ITCs per step and per 25-frame window")(_annotate_args)
+def _annotate(args: argparse.Namespace) -> dict:
+    from annotations import annotate_file, export_segment_labels
+
+    out = args.out or (args.demos[:-5] if args.demos.endswith(".hdf5") else args.demos) + ".annotated.hdf5"
+    summary = annotate_file(args.demos, out, labels_csv=args.labels, overrides_dir=args.specs, gamma=args.gamma, resume=args.resume)
+    if args.export_labels:
+        export_segment_labels(out, args.export_labels)
+    return summary
+
+
+def _itc_spec_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("suite")
+    p.add_argument("task")
+    p.add_argument("--specs", help="directory of per-task YAML spec overrides")
+
+
+@command("itc-spec", "print the ITC constraint spec derived from a task's BDDL")(_itc_spec_args)
+def _itc_spec(args: argparse.Namespace) -> dict:
+    from itc import describe_spec
+
+    return describe_spec(args.suite, args.task, overrides_dir=args.specs)
+
+
 def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", nargs="+", help="demos HDF5 file(s)")
     p.add_argument("--out", required=True)

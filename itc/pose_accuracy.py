@@ -1,0 +1,100 @@
+"""Target Pose Accuracy: a placed object ends near its target's centre and stays there.
+
+A placement is judged once per attempt (an attempt starts when the robot grasps the object):
+- when its on/in sub-goal becomes true during the episode (LIBERO ends a successful episode right there,
+  so this is often the only chance), or
+- when the object, released within `placement_radius` of its target or touching it, comes to rest.
+The object must then lie within `place_xy_tolerance` of the target's centre; where several goal objects
+share one region (two items in a basket, two pots on a stove) they cannot all sit at its centre, so the
+tolerance there grows per axis to the region's half size minus `region_edge_margin` (an ellipse test).
+A placement judged good that later leaves the tolerance while nobody holds it (slid or bounced out, or
+knocked away) is a violation at that step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from itc.base import Constraint, cm
+from itc.context import StepContext
+from itc.spec import Placement
+
+
+@dataclass
+class _Attempt:
+    released: bool = False
+    rest_steps: int = 0
+    judged: bool = False
+    placed: bool = False
+
+
+class PoseAccuracy(Constraint):
+    name = "pose_accuracy"
+
+    def reset(self, ctx: StepContext) -> None:
+        self._goal_held = [ctx.predicate(self.spec.subgoals[p.subgoal]) for p in self.spec.placements]
+        self._attempts = [_Attempt() for _ in self.spec.placements]
+        targets = [p.target for p in self.spec.placements]
+        self._shared = {t for t in targets if targets.count(t) > 1}
+        self._prev_held = ctx.held
+
+    def check(self, ctx: StepContext) -> list[str]:
+        reasons: list[str] = []
+        for k, placement in enumerate(self.spec.placements):
+            goal_now = ctx.predicate(self.spec.subgoals[placement.subgoal])
+            reasons += self._follow(ctx, placement, k, goal_now)
+            self._goal_held[k] = goal_now
+        self._prev_held = ctx.held
+        return reasons
+
+    def _follow(self, ctx: StepContext, placement: Placement, k: int, goal_now: bool) -> list[str]:
+        obj, p = placement.obj, self.params
+        held = ctx.held == obj
+        if held and self._prev_held != obj:
+            self._attempts[k] = _Attempt()
+        attempt = self._attempts[k]
+        if not held and self._prev_held == obj:
+            attempt.released, attempt.rest_steps = True, 0
+        if goal_now and not self._goal_held[k] and not attempt.judged:
+            return self._judge(ctx, placement, attempt)
+        if attempt.released and not held:
+            attempt.rest_steps = attempt.rest_steps + 1 if ctx.speed(obj) < p.rest_speed else 0
+            if attempt.rest_steps >= p.rest_steps:
+                attempt.released = False
+                if not attempt.judged and self._near(ctx, placement):
+                    return self._judge(ctx, placement, attempt)
+        if attempt.placed and not held and not attempt.released:
+            ok, error = self._error(ctx, placement)
+            if not ok:
+                attempt.placed = False
+                return [f"{obj} left its place on {placement.target}: now {error}"]
+        return []
+
+    def _judge(self, ctx: StepContext, placement: Placement, attempt: _Attempt) -> list[str]:
+        ok, error = self._error(ctx, placement)
+        attempt.judged, attempt.placed = True, ok
+        return [] if ok else [f"{placement.obj} placed on {placement.target} {error}"]
+
+    def _centre(self, ctx: StepContext, placement: Placement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Target centre, its rotation, and the xy tolerance along the target's own x and y axes."""
+        p = self.params
+        if not placement.target_is_region:
+            return ctx.position(placement.target), np.eye(3), np.full(2, p.place_xy_tolerance)
+        region = ctx.region(placement.target)
+        tol = np.full(2, p.place_xy_tolerance)
+        if region.half_size is not None and placement.target in self._shared:
+            tol = np.maximum(tol, np.asarray(region.half_size[:2], dtype=float) - p.region_edge_margin)
+        return region.position, region.rotation, tol
+
+    def _error(self, ctx: StepContext, placement: Placement) -> tuple[bool, str]:
+        centre, rotation, tol = self._centre(ctx, placement)
+        local = (rotation.T @ (ctx.position(placement.obj) - centre))[:2]
+        ok = float(np.sum((local / tol) ** 2)) <= 1.0
+        distance = cm(float(np.linalg.norm(local)))
+        return ok, f"{distance} from its centre (offset {cm(local[0])}, {cm(local[1])}; allowed {cm(tol[0])} x {cm(tol[1])})"
+
+    def _near(self, ctx: StepContext, placement: Placement) -> bool:
+        centre, _, _ = self._centre(ctx, placement)
+        close = float(np.linalg.norm((ctx.position(placement.obj) - centre)[:2])) <= self.params.placement_radius
+        return close or (placement.target_entity is not None and placement.target_entity in ctx.touches(placement.obj))
