@@ -84,6 +84,11 @@ class CollisionFree(Constraint):
             if not landed_on:
                 if ctx.touches_robot(name):  # still sliding out of the fingers: the fall starts later
                     self._falling[name] = z
+                elif start - z > self.params.drop_height:
+                    # Already fallen further than allowed, in the air: judge now, since LIBERO may end
+                    # the episode (goal reached mid-fall) before the object lands.
+                    del self._falling[name]
+                    reasons.append(f"dropped {name}: in free fall over {cm(start - z)} (limit {cm(self.params.drop_height)})")
                 continue
             del self._falling[name]
             if start - z > self.params.drop_height:
