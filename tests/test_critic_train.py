@@ -52,7 +52,7 @@ def test_training_writes_artifact_metrics_and_summary(trained):
     for key, value in critic.network.state_dict().items():  # the artifact holds the final critics
         assert torch.equal(value, trained_params[f"qvalue_network_params.{key}"]), key
     config = critic.config
-    assert set(config["versions"]) == {"torch", "torchrl", "tensordict", "libero-elegant"}
+    assert set(config["versions"]) >= {"torch", "torchrl", "tensordict", "libero-elegant"}
     assert config["training"]["steps"] == 6 and config["encoder"]["layouts"]["libero_object/1"] == task_layout(1)
 
 

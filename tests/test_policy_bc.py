@@ -179,7 +179,7 @@ def test_load_refuses_missing_and_corrupt_dirs(policy_dir, tmp_path):
     with pytest.raises(UserInputError, match="does not match config.json"):
         load_policy(str(broken))
     (broken / "config.json").write_text("{not json")
-    with pytest.raises(UserInputError, match="not valid JSON"):
+    with pytest.raises(UserInputError, match="corrupt policy config"):
         load_policy(str(broken))
     (broken / "config.json").write_text(json.dumps({"format": "something-else"}))
     with pytest.raises(UserInputError, match="field 'format'"):

@@ -11,14 +11,12 @@ import hashlib
 import io
 import json
 import os
-import platform
-from importlib import metadata as importlib_metadata
 from typing import Any
 
 import numpy as np
 import torch
 
-from base_suites.atomic import atomic_write
+from base_suites.atomic import atomic_write, library_versions, read_json_file
 
 from base_suites.errors import UserInputError
 from elegant.policies.bc_features import BCFeatures
@@ -35,14 +33,6 @@ def torch_bytes(obj: Any) -> bytes:
     return buffer.getvalue()
 
 
-def _versions() -> dict[str, str]:
-    try:
-        project = importlib_metadata.version("libero-elegant")
-    except importlib_metadata.PackageNotFoundError:
-        project = "unknown"
-    return {"libero-elegant": project, "torch": torch.__version__, "numpy": np.__version__, "python": platform.python_version()}
-
-
 def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, Any], training: dict[str, Any]) -> None:
     """Publish the final policy in `out` (model.pt first; config.json, which vouches for it, last)."""
     payload = torch_bytes(net.state_dict())
@@ -52,7 +42,7 @@ def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, 
         "model": model,
         "features": features.to_dict(),
         "training": training,
-        "versions": _versions(),
+        "versions": library_versions(),
         "model_sha256": hashlib.sha256(payload).hexdigest(),
     }
     atomic_write(os.path.join(out, CONFIG_FILE), json.dumps(config, indent=1).encode())
@@ -66,11 +56,7 @@ def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
     for file in (config_path, model_path):
         if not os.path.isfile(file):
             raise UserInputError(f"{path}: missing {os.path.basename(file)}; not a trained policy (or training has not finished)")
-    try:
-        with open(config_path) as fh:
-            config = json.load(fh)
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise UserInputError(f"{config_path}: not valid JSON") from None
+    config = read_json_file(config_path, "policy config")
     if not isinstance(config, dict) or config.get("format") != ARTIFACT_FORMAT:
         got = config.get("format") if isinstance(config, dict) else None
         raise UserInputError(f"{config_path}: field 'format' is {got!r}, expected {ARTIFACT_FORMAT!r}")
