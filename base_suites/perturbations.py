@@ -144,33 +144,47 @@ class InitPerturbation(Perturbation):
             return
         import mujoco
 
+        from base_suites.sim_view import SimView
+
+        view = SimView(domain)
         rng = self.rng(episode_seed)
         model, data = domain.sim.model._model, domain.sim.data._data
-        base = data.xpos[model.body("robot0_base").id][:2]
-        movable = {n: domain.objects_dict[n].joints[0] for n in domain.objects_dict if domain.objects_dict[n].joints}
-        xy = {n: data.xpos[domain.obj_body_id[n]][:2].copy() for n in list(movable) + list(domain.fixtures_dict)}
-        low = np.min(list(xy.values()), axis=0) - 0.1
-        high = np.max(list(xy.values()), axis=0) + 0.1
+        base = view.robot_base_position()[:2]
+        movable = {n: domain.objects_dict[n].joints[0] for n in view.objects if domain.objects_dict[n].joints}
+        boxes = {}
+        for name in view.objects + view.fixtures:
+            pts = view.geom_points(name)
+            if len(pts):
+                boxes[name] = (pts[:, :2].min(axis=0), pts[:, :2].max(axis=0))
+        centres = np.array([(lo + hi) / 2 for lo, hi in boxes.values()])
+        area = (centres.min(axis=0) - 0.1, centres.max(axis=0) + 0.1)
         shifts = {}
-        for name in (n for n in _task_entities(domain) if n in movable):
-            target = self._draw_position(rng, xy[name], {k: v for k, v in xy.items() if k != name}, base, low, high)
+        for name in (n for n in _task_entities(domain) if n in movable and n in boxes):
+            others = {k: v for k, v in boxes.items() if k != name}
+            delta = self._draw_shift(rng, boxes[name], others, base, area)
             adr = model.jnt_qposadr[model.joint(movable[name]).id]
-            data.qpos[adr : adr + 2] += target - xy[name]
-            shifts[name] = [round(float(v), 4) for v in target - xy[name]]
-            xy[name] = target
+            data.qpos[adr : adr + 2] += delta
+            boxes[name] = (boxes[name][0] + delta, boxes[name][1] + delta)
+            shifts[name] = [round(float(v), 4) for v in delta]
         mujoco.mj_forward(model, data)
         self._record["shifts"] = shifts
 
-    def _draw_position(self, rng, start, others, base, low, high) -> np.ndarray:
+    def _draw_shift(self, rng, box, others, base, area) -> np.ndarray:
+        """A 0.2-0.3 m shift that keeps the object's footprint within reach, inside the scene's area and
+        clear (by `clearance` / 4) of every other footprint."""
+        lo, hi = box
+        margin = self.clearance / 4
         for _ in range(self.max_tries):
             angle = rng.uniform(0, 2 * np.pi)
-            dist = rng.uniform(self.min_shift, self.max_shift)
-            cand = start + dist * np.array([np.cos(angle), np.sin(angle)])
-            reach = np.linalg.norm(cand - base)
-            if not (self.reach[0] <= reach <= self.reach[1]) or np.any(cand < low) or np.any(cand > high):
+            delta = rng.uniform(self.min_shift, self.max_shift) * np.array([np.cos(angle), np.sin(angle)])
+            new_lo, new_hi = lo + delta, hi + delta
+            centre = (new_lo + new_hi) / 2
+            if not (self.reach[0] <= np.linalg.norm(centre - base) <= self.reach[1]):
                 continue
-            if all(np.linalg.norm(cand - p) >= self.clearance for p in others.values()):
-                return cand
+            if np.any(centre < area[0]) or np.any(centre > area[1]):
+                continue
+            if all(np.any(new_lo > o_hi + margin) or np.any(new_hi < o_lo - margin) for o_lo, o_hi in others.values()):
+                return delta
         raise RuntimeError(f"no free reachable placement {self.min_shift}-{self.max_shift} m away after {self.max_tries} tries")
 
 

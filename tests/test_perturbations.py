@@ -87,3 +87,19 @@ def test_env_swap_changes_scene_style_and_table():
     assert tex.shape != plain_tex.shape or not np.array_equal(tex, plain_tex)
     assert np.array_equal(env.reset(seed=0)[0]["state"], plain.reset(seed=0)[0]["state"])
     env.close(), plain.close()
+
+
+@pytest.mark.parametrize("perturbation", ["init:2", "object:1,env:1,language:1"])
+def test_task_stays_solvable_under_perturbation(perturbation):
+    from base_suites.experts import ScriptedExpert
+
+    env = make_env("libero_goal", 8, seed=0, perturbation=perturbation)
+    obs, info = env.reset(options={"init_state": 1})
+    expert = ScriptedExpert(env)
+    expert.reset(env.metadata, episode=0)
+    for _ in range(env.max_steps):
+        obs, _, terminated, truncated, info = env.step(expert(obs))
+        if terminated or truncated:
+            break
+    assert info["success"], info["perturbation"]
+    env.close()

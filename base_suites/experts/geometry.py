@@ -125,7 +125,7 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
     return max(scored, key=lambda vs: vs[0])[1]
 
 
-def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, clearance: float = 0.03) -> float:
+def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, clearance: float = 0.06) -> float:
     """Height of the grip point that keeps the held object's bottom `margin` above everything in the
     corridor between where it is and where it goes (not above the whole scene: tall cabinets elsewhere
     would force needlessly high, slow carries)."""

@@ -135,13 +135,16 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, release_clearan
         yield from ctx.hold(OPEN, 10)
         return True
     # Descend slowly until the held object touches its support (or anything but the robot).
+    # Only go down while the object is over its goal: correcting sideways first keeps it off rims and
+    # handles it would otherwise be set down on.
     ctx.servo.reset_integral()
-    for _ in range(120):
+    for _ in range(150):
+        xy_error = goal_xy - view.position(obj)[:2]
+        aligned = np.linalg.norm(xy_error) < 0.015
         touching = [c.other(obj) for c in view.contacts() if c.involves(obj)]
-        if any(e not in ("gripper", "robot") for e in touching):
+        if any(e not in ("gripper", "robot") for e in touching) and np.linalg.norm(xy_error) < 0.03:
             break
-        eef = view.eef_position()
-        yield ctx.servo.action(np.array([*(goal_xy - (view.position(obj)[:2] - eef[:2]) - eef[:2]), -0.02]), rotation_error(upright, view.eef_rotation()), CLOSE, speed=0.35)
+        yield ctx.servo.action(np.array([*xy_error, -0.02 if aligned else 0.0]), rotation_error(upright, view.eef_rotation()), CLOSE, speed=0.35)
     yield from ctx.hold(OPEN, 10, upright)
     up = view.eef_position() + np.array([0, 0, 0.10])
     yield from ctx.goto(up, upright, OPEN, tol=0.02, max_steps=30)
