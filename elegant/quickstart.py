@@ -85,6 +85,6 @@ def quickstart(out: str = "runs/quickstart", config: QuickstartConfig | None = N
     result = {
         mode: {k: summaries[mode][k] for k in ("success_rate", "esr", "interventions_per_episode")} for mode in summaries
     }
-    result["report"] = os.path.join(report_dir, "report.md")
+    result["report"] = os.path.join(report_dir, "comparison.md")
     result["runs"] = runs
     return result
