@@ -5,9 +5,11 @@ Each step t of each demo becomes one transition, in TorchRL's layout (batch = tr
     observation        (D,)  float32  the state encoded by `TaskFeatureEncoder` (padded + task one-hot),
                                       state part normalised with the dataset's mean/std
     action             (A,)  float32  the dataset action mapped onto [-1, 1] with the dataset's bounds
-    mc_return          (1,)  float32  discounted return-to-go of the elegance reward (Cal-QL's floor)
+    mc_return          (1,)  float32  discounted return-to-go of the training reward (Cal-QL's floor;
+                                      NO_FLOOR for demos that end without success)
     next/observation   (D,)  float32  the same encoding of the state after the action
-    next/reward        (1,)  float32  the elegance reward r_t (1 where all four ITCs hold)
+    next/reward        (1,)  float32  the violation penalty r_t - 1 of the elegance reward r_t
+                                      (0 where all four ITCs hold, -1 where one is violated)
     next/done          (1,)  bool     True at the last step of a demo
     next/terminated    (1,)  bool     True at the last step of a demo that reached the task goal
     next/truncated     (1,)  bool     True at the last step of a demo that did not
@@ -16,9 +18,9 @@ Episode ends: the returns-to-go are computed with `torchrl.objectives.value.func
 demo's last step being its end, so the return of the last step is its own reward. A demo that reaches
 the goal ends in a terminal state (the TD target does not bootstrap past it); a demo that stops without
 success is truncated, not terminal: its TD target still bootstraps from the last next-state, while its
-Monte-Carlo return, which stops there, is a lower bound on the true return (exactly what Cal-QL's floor
-needs, as elegance rewards are non-negative). The returns are recomputed here with the gamma stored in
-the file's annotation attrs and checked against the file's own `mc_return`, so a file annotated with a
+Monte-Carlo return, which stops there, bounds the true return from above under the penalty reward, so
+those transitions get no Cal-QL floor. The file's own `mc_return` (of the elegance reward, with the
+gamma stored in the annotation attrs) is recomputed and checked first, so a file annotated with a
 different convention is refused instead of silently miscalibrating the critic.
 """
 from __future__ import annotations
@@ -32,6 +34,8 @@ import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
 from torchrl.objectives.value.functional import reward2go
+
+NO_FLOOR = -1.0e6  # an MC "floor" that never clips (for demos whose return is not a lower bound)
 
 from annotations import DemoFile, TaskFeatureEncoder
 from base_suites.errors import UserInputError
@@ -163,8 +167,17 @@ def load_transitions(paths: Sequence[str]) -> TransitionData:
     terminal = np.zeros_like(last)
     terminal[last] = [d.success for d in demos]
     done = torch.from_numpy(last)
+    _check_returns(demos, reward2go(reward, done, gamma, time_dim=-1).numpy(), gamma)
+    # Train on the violation-penalty form of the elegance reward (r - 1: 0 where all four ITCs hold, -1
+    # where one breaks). With r itself, Q counts the kept steps still to come, so it mostly measures how
+    # long the episode has left and rewards dawdling; with r - 1 it is minus the discounted violations to
+    # come, which is what ranking actions by elegance needs.
+    reward = reward - 1.0
     mc_return = reward2go(reward, done, gamma, time_dim=-1)
-    _check_returns(demos, mc_return.numpy(), gamma)
+    # A demo cut off without success could have violated more later: its MC return is then an upper
+    # bound, not the lower bound Cal-QL's floor needs, so those transitions get no floor.
+    truncated_rows = torch.from_numpy(np.repeat([not d.success for d in demos], [len(d.reward) for d in demos]))
+    mc_return = torch.where(truncated_rows, torch.full_like(mc_return, NO_FLOOR), mc_return)
 
     normalization = Normalization.fit(obs, actions, encoder.state_dim)
     transitions = TensorDict(

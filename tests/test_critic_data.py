@@ -12,6 +12,7 @@ import torch
 from annotations import CRITERIA, SEGMENT_LENGTH, Demo, DemoWriter
 from base_suites.errors import UserInputError
 from critics import Normalization, load_transitions, make_replay_buffer
+from critics.data import NO_FLOOR
 
 ROBOT = [["robot0_eef_pos", 3], ["robot0_eef_quat", 4], ["robot0_gripper_qpos", 2], ["robot0_joint_pos", 7]]
 
@@ -118,9 +119,15 @@ def test_episode_ends_and_returns(annotated):
     success = np.array([d["rewards"][-1] > 0 for d in raw])
     assert np.array_equal(np.flatnonzero(td["next", "terminated"].squeeze(-1).numpy()), ends[success])
     assert np.array_equal(np.flatnonzero(td["next", "truncated"].squeeze(-1).numpy()), ends[~success])
-    expected = np.concatenate([discounted_returns(d["elegance_reward"], 0.9) for d in raw])
+    # Training reward: the violation penalty r - 1; its returns floor Cal-QL only for successful demos.
+    penalty = [d["elegance_reward"] - 1.0 for d in raw]
+    assert np.allclose(td["next", "reward"].squeeze(-1).numpy(), np.concatenate(penalty))
+    expected = np.concatenate([
+        discounted_returns(p, 0.9) if ok else np.full(len(p), NO_FLOOR) for p, ok in zip(penalty, success)
+    ])
     assert np.allclose(td["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
-    assert np.allclose(td["mc_return"].squeeze(-1).numpy()[ends], np.concatenate([d["elegance_reward"][-1:] for d in raw]))
+    last_penalty = np.array([p[-1] for p in penalty])
+    assert np.allclose(td["mc_return"].squeeze(-1).numpy()[ends[success]], last_penalty[success])
     assert data.gamma == 0.9
 
 
