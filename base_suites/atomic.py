@@ -54,3 +54,22 @@ def library_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             out[name] = "not installed"
     return out
+
+
+def read_artifact_config(path: str | os.PathLike, *, kind: str, config_file: str, weights_file: str, fmt: str, hint: str) -> dict:
+    """Check a saved model directory (exists, has its config and weights, right format) and return its
+    config; every failure is one line naming the directory or file. `hint` says how to make one."""
+    from base_suites.errors import UserInputError
+
+    path = os.fspath(path)
+    if not os.path.isdir(path):
+        raise UserInputError(f"{path}: no such {kind} directory ({hint})")
+    config_path = os.path.join(path, config_file)
+    for needed in (config_path, os.path.join(path, weights_file)):
+        if not os.path.isfile(needed):
+            raise UserInputError(f"{path}: not a {kind} directory: missing {os.path.basename(needed)} ({hint})")
+    config = read_json_file(config_path, f"{kind} config")
+    found = config.get("format") if isinstance(config, dict) else None
+    if found != fmt:
+        raise UserInputError(f"{config_path}: field 'format' is {found!r}, expected {fmt!r}")
+    return config

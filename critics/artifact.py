@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from annotations import TaskFeatureEncoder
-from base_suites.atomic import atomic_write, atomic_write_json, library_versions, read_json_file
+from base_suites.atomic import atomic_write, atomic_write_json, library_versions, read_artifact_config
 from base_suites.errors import UserInputError
 from critics.networks import TwinQNetwork
 from critics.normalization import Normalization
@@ -162,16 +162,9 @@ def save_critic(
 def load(path: str | os.PathLike) -> Critic:
     """Load a critic directory written by `train_critic`; refuses a missing or corrupt one with one line."""
     path = str(path)
-    if not os.path.isdir(path):
-        raise UserInputError(f"{path}: no such critic directory")
+    config = read_artifact_config(path, kind="critic", config_file=CONFIG_FILE, weights_file=WEIGHTS_FILE, fmt=CRITIC_FORMAT,
+                                  hint="train one with `elegant train-critic`")
     config_path, weights_path = os.path.join(path, CONFIG_FILE), os.path.join(path, WEIGHTS_FILE)
-    for needed in (config_path, weights_path):
-        if not os.path.isfile(needed):
-            raise UserInputError(f"{path}: not a critic directory (missing {os.path.basename(needed)}; train one with `elegant train-critic`)")
-    config = read_json_file(config_path, "critic config")
-    if not isinstance(config, dict) or config.get("format") != CRITIC_FORMAT:
-        found = config.get("format") if isinstance(config, dict) else None
-        raise UserInputError(f"{config_path}: field 'format' is {found!r}, expected {CRITIC_FORMAT!r}")
     try:
         network = TwinQNetwork(**config["network"])
         encoder = TaskFeatureEncoder.from_dict(config["encoder"])

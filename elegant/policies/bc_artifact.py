@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from base_suites.atomic import atomic_write, library_versions, read_json_file
+from base_suites.atomic import atomic_write, library_versions, read_artifact_config
 
 from base_suites.errors import UserInputError
 from elegant.policies.bc_features import BCFeatures
@@ -50,16 +50,9 @@ def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, 
 
 def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
     """Load a policy directory, refusing a missing, foreign, corrupt or inconsistent one in one line."""
-    if not os.path.isdir(path):
-        raise UserInputError(f"{path}: no such policy directory (expected the output of train_policy)")
-    config_path, model_path = os.path.join(path, CONFIG_FILE), os.path.join(path, MODEL_FILE)
-    for file in (config_path, model_path):
-        if not os.path.isfile(file):
-            raise UserInputError(f"{path}: missing {os.path.basename(file)}; not a trained policy (or training has not finished)")
-    config = read_json_file(config_path, "policy config")
-    if not isinstance(config, dict) or config.get("format") != ARTIFACT_FORMAT:
-        got = config.get("format") if isinstance(config, dict) else None
-        raise UserInputError(f"{config_path}: field 'format' is {got!r}, expected {ARTIFACT_FORMAT!r}")
+    config = read_artifact_config(path, kind="policy", config_file=CONFIG_FILE, weights_file=MODEL_FILE, fmt=ARTIFACT_FORMAT,
+                                  hint="the output of `elegant train-policy`")
+    model_path = os.path.join(path, MODEL_FILE)
     with open(model_path, "rb") as fh:
         payload = fh.read()
     if hashlib.sha256(payload).hexdigest() != config.get("model_sha256"):
