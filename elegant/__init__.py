@@ -6,8 +6,7 @@ simulator.
 """
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from base_suites.lazy import lazy_getattr
 
 _LAZY = {
     "JITI": "elegant.jiti",
@@ -34,9 +33,4 @@ _LAZY = {
 __all__ = sorted(_LAZY)
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, globals(), _LAZY)

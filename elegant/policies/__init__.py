@@ -5,8 +5,7 @@ stays instant for commands that never touch a network.
 """
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from base_suites.lazy import lazy_getattr
 
 from elegant.policies.adapters import (
     TORCHRL_LIBERO_STATE, CallablePolicy, LayoutSlice, LeRobotPolicy, PolicyAdapter, StateFn, TorchRLPolicy, as_policy,
@@ -27,9 +26,4 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name]), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_getattr(__name__, globals(), _LAZY)
