@@ -74,6 +74,10 @@ class Decision:
     chosen: int
     chosen_q: float | None
     time: float
+    # Diagnostics for intervened steps: every candidate's Q (index 0 = the base action) and how far the
+    # executed action is from the base action (L2 over the 7 action dims); None when nothing was re-ranked.
+    candidate_q: list[float] | None = None
+    action_change: float | None = None
 
 
 def _state_of(obs: Observation) -> np.ndarray:
@@ -177,8 +181,13 @@ class JITI:
             chosen = int(np.argmax(scores_c))  # first maximum: the base action wins ties
             chosen_q, executed = float(scores_c[chosen]), candidates[chosen]
         self._scores.append(chosen_q)
+        elapsed = time.perf_counter() - start
         self.log.append(
-            Decision(len(self.log), q, mean, std, dq, tau, scores_c is not None, chosen, chosen_q, time.perf_counter() - start)
+            Decision(
+                len(self.log), q, mean, std, dq, tau, scores_c is not None, chosen, chosen_q, elapsed,
+                candidate_q=None if scores_c is None else [round(float(x), 4) for x in scores_c],
+                action_change=None if scores_c is None else float(np.linalg.norm(executed - action)),
+            )
         )
         return executed
 

@@ -174,7 +174,11 @@ def test_trace_has_one_column_per_field_and_one_row_per_step():
     jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), window=2)
     rollout(jiti, 4)
     trace = jiti.trace()
-    assert set(trace) >= {"step", "q", "mean", "dq", "intervened", "chosen", "chosen_q", "time"}
+    assert set(trace) >= {"step", "q", "mean", "dq", "intervened", "chosen", "chosen_q", "time", "candidate_q", "action_change"}
+    for intervened, cand, chosen_q, change in zip(trace["intervened"], trace["candidate_q"], trace["chosen_q"], trace["action_change"]):
+        assert (cand is not None) == intervened
+        if intervened:
+            assert abs(max(cand) - chosen_q) < 1e-3 and change >= 0.0
     assert all(len(v) == 4 for v in trace.values()) and trace["step"] == [0, 1, 2, 3]
 
 
@@ -193,3 +197,20 @@ def test_missing_state_observation_is_a_user_error():
     jiti.reset(META)
     with pytest.raises(UserInputError, match="'state'"):
         jiti({"agentview": np.zeros((2, 2, 3))})
+
+
+def test_intervened_steps_log_every_candidate_score_and_the_action_change():
+    class PreferPositive:
+        def bind(self, metadata):
+            return self
+
+        def q(self, state, actions):
+            return np.asarray(actions)[:, 0]  # prefers a large first action dimension
+
+    jiti = JITI(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8)
+    rollout(jiti, 3)
+    trace = jiti.trace()
+    assert trace["intervened"] == [True, True, True]
+    for cand, chosen, chosen_q, change in zip(trace["candidate_q"], trace["chosen"], trace["chosen_q"], trace["action_change"]):
+        assert len(cand) == 8 and chosen == int(np.argmax(cand)) and abs(chosen_q - max(cand)) < 1e-3
+        assert (change > 0) == (chosen != 0)
