@@ -193,6 +193,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold-mode", choices=("absolute", "std"))
     p.add_argument("--candidates", type=int, dest="n_candidates")
     p.add_argument("--noise-scale", type=float)
+    p.add_argument("--trust-radius", type=float, help="only candidates within this L2 distance of the base action may be chosen")
 
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)

@@ -33,7 +33,7 @@ from elegant.metrics import summarize
 from base_suites.atomic import atomic_write
 from elegant.report import write_run_report
 
-JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale")
+JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius")
 
 
 def episode_start(seed: int, suite: str, task_index: int, episode: int, n_init_states: int) -> tuple[int, int]:

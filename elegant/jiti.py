@@ -104,6 +104,7 @@ class JITI:
         mode: str = "jiti",
         noise_scale: float = DEFAULT_NOISE_SCALE,
         seed: int = 0,
+        trust_radius: float | None = None,
     ) -> None:
         if mode not in MODES:
             raise unknown_choice("JITI mode", mode, MODES)
@@ -115,6 +116,8 @@ class JITI:
             raise UserInputError(f"JITI n_candidates must be >= 2 (the base action plus alternatives), got {n_candidates}")
         if float(threshold) < 0 or float(noise_scale) < 0:
             raise UserInputError(f"JITI threshold and noise_scale must be >= 0, got {threshold} and {noise_scale}")
+        if trust_radius is not None and float(trust_radius) <= 0:
+            raise UserInputError(f"JITI trust_radius must be > 0 (or None for no limit), got {trust_radius}")
         if critic is None and mode != "base":
             raise UserInputError(f"JITI mode {mode!r} needs a critic; only mode 'base' runs without one")
         self.policy = as_policy(policy, noise_scale=noise_scale, seed=seed)
@@ -125,6 +128,9 @@ class JITI:
         self.n_candidates = int(n_candidates)
         self.mode = mode
         self.noise_scale = float(noise_scale)
+        # Candidates farther than this (L2 over the action) from the base action are not eligible: a
+        # critic trained on a few demos ranks far-off samples (another GMM mode, a gripper flip) badly.
+        self.trust_radius = None if trust_radius is None else float(trust_radius)
         self._scores: deque[float] = deque(maxlen=self.window)
         self.log: list[Decision] = []
 
@@ -137,6 +143,7 @@ class JITI:
             "threshold_mode": self.threshold_mode,
             "n_candidates": self.n_candidates,
             "noise_scale": self.noise_scale,
+            "trust_radius": self.trust_radius,
             "policy_adapter": type(self.policy).__name__,
         }
 
@@ -178,7 +185,11 @@ class JITI:
             scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
         chosen, chosen_q, executed = 0, q, action
         if scores_c is not None:
-            chosen = int(np.argmax(scores_c))  # first maximum: the base action wins ties
+            eligible = scores_c
+            if self.trust_radius is not None:
+                far = np.linalg.norm(candidates - action, axis=1) > self.trust_radius
+                eligible = np.where(far, -np.inf, scores_c)
+            chosen = int(np.argmax(eligible))  # first maximum: the base action wins ties
             chosen_q, executed = float(scores_c[chosen]), candidates[chosen]
         self._scores.append(chosen_q)
         elapsed = time.perf_counter() - start

@@ -26,6 +26,9 @@ class QuickstartConfig:
     policy_epochs: int = 40
     episodes: int = 6
     seed: int = 0
+    # JITI only picks among candidates within this L2 distance of the base action: with a critic
+    # trained on 30 demos, unrestricted re-ranking chose far-off samples and success fell to 0%.
+    trust_radius: float = 0.3
 
 
 def _done(path: str) -> bool:
@@ -78,8 +81,9 @@ def quickstart(out: str = "runs/quickstart", config: QuickstartConfig | None = N
     summaries = {}
     for step, mode in ((5, "base"), (6, "jiti")):
         say(f"{step}/6 evaluate {mode}: {cfg.episodes} episodes")
+        jiti_kwargs = {"trust_radius": cfg.trust_radius} if mode == "jiti" else None
         summaries[mode] = evaluate(cfg.suite, [cfg.task], policy_dir, critic_dir, mode=mode, episodes=cfg.episodes, seed=cfg.seed,
-                                   out=runs[mode], resume=True, progress=progress)
+                                   out=runs[mode], resume=True, progress=progress, jiti_kwargs=jiti_kwargs)
     report_dir = os.path.join(out, "report")
     compare_runs([runs["base"], runs["jiti"]], report_dir)
     result = {

@@ -214,3 +214,20 @@ def test_intervened_steps_log_every_candidate_score_and_the_action_change():
     for cand, chosen, chosen_q, change in zip(trace["candidate_q"], trace["chosen"], trace["chosen_q"], trace["action_change"]):
         assert len(cand) == 8 and chosen == int(np.argmax(cand)) and abs(chosen_q - max(cand)) < 1e-3
         assert (change > 0) == (chosen != 0)
+
+
+def test_trust_radius_keeps_far_candidates_out_of_the_choice():
+    class PreferPositive:
+        def bind(self, metadata):
+            return self
+
+        def q(self, state, actions):
+            return np.asarray(actions)[:, 0]
+
+    free = JITI(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8, seed=1)
+    near = JITI(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8, seed=1, trust_radius=1e-9)
+    rollout(free, 3), rollout(near, 3)
+    assert all(d.chosen == 0 and d.action_change == 0.0 for d in near.log)  # only the base action is near enough
+    assert any(d.chosen != 0 for d in free.log)
+    with pytest.raises(UserInputError, match="trust_radius"):
+        JITI(SamplingPolicy(), PreferPositive(), trust_radius=0.0)
