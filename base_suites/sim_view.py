@@ -69,6 +69,10 @@ class SimView:
         self._body_id = {name: int(domain.obj_body_id[name]) for name in self.objects + self.fixtures}
         self._geom_entity = self._map_geoms_to_entities()
         self._collision_geoms: dict[str, np.ndarray] = {}
+        # Ids looked up once: these queries run several times per env step (expert, ITC monitor, obs).
+        self._grip_site = self._model.site("gripper0_grip_site").id
+        self._hand_body = self._model.body("robot0_right_hand").id
+        self._base_body = self._model.body("robot0_base").id
         self._finger_of_geom = {self._model.geom(n).id: side for side, names in enumerate(FINGERS) for n in names}
         self._free_qvel = {
             name: self._model.jnt_dofadr[self._model.joint(domain.get_object(name).joints[0]).id]
@@ -197,26 +201,22 @@ class SimView:
             target = self._domain.object_sites_dict[target].parent_name
         return self._articulations.get(target, ())
 
-    def articulation_state(self, target: str, query: str) -> bool:
-        """LIBERO's own open/close/turnon/turnoff test for one joint value set (a predicate without a goal)."""
-        return self.predicate((query, target))
-
     @property
     def articulated(self) -> dict[str, tuple[str, ...]]:
         return dict(self._articulations)
 
     def eef_position(self) -> np.ndarray:
-        return self._data.site_xpos[self._model.site("gripper0_grip_site").id].copy()
+        return self._data.site_xpos[self._grip_site].copy()
 
     def hand_quaternion(self) -> np.ndarray:
         """Orientation (x, y, z, w) of the robot hand body, as robosuite's `robot0_eef_quat`."""
-        return _xyzw(self._data.xquat[self._model.body("robot0_right_hand").id])
+        return _xyzw(self._data.xquat[self._hand_body])
 
     def eef_rotation(self) -> np.ndarray:
-        return self._data.site_xmat[self._model.site("gripper0_grip_site").id].reshape(3, 3).copy()
+        return self._data.site_xmat[self._grip_site].reshape(3, 3).copy()
 
     def robot_base_position(self) -> np.ndarray:
-        return self._data.xpos[self._model.body("robot0_base").id].copy()
+        return self._data.xpos[self._base_body].copy()
 
     def gripper_joints(self) -> np.ndarray:
         """The two finger joint positions (robosuite's `robot0_gripper_qpos`)."""
@@ -280,12 +280,3 @@ class SimView:
     def predicate(self, predicate: tuple[str, ...]) -> bool:
         """Truth of one BDDL predicate, e.g. ("on", "bowl_1", "plate_1"), evaluated as LIBERO does."""
         return bool(self._domain._eval_predicate(list(predicate)))
-
-    def goal(self) -> tuple[tuple[str, ...], ...]:
-        return tuple(tuple(p) for p in self._domain.parsed_problem["goal_state"])
-
-    def objects_of_interest(self) -> tuple[str, ...]:
-        return tuple(self._domain.obj_of_interest)
-
-    def time(self) -> float:
-        return float(self._data.time)

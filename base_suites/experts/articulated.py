@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_z
+from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
 from base_suites.experts.skills import Actions, SkillContext
 from base_suites.sim_view import SimView
 
@@ -47,7 +47,7 @@ def open_(ctx: SkillContext, target: str) -> Actions:
     """Open a drawer (pull its handle) or a hinged door; True once LIBERO calls it open."""
     view = ctx.view
     joint = view.articulation_joints(target)[0]
-    if view.joint(joint)["range"] is not None and _is_slide(view, joint):
+    if _is_slide(view, joint):
         return (yield from _pull_drawer(ctx, target))
     return (yield from _swing_door(ctx, target, opening=True))
 
@@ -113,26 +113,20 @@ def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
     edge = pts[np.argmax(np.linalg.norm(radial, axis=1))]
     arm = edge - anchor
     arm -= (arm @ axis) * axis
-    radius = np.linalg.norm(arm)
     sign = 1.0 if opening else -1.0
     rot = grasp_rotation(0.0)
     query = "open" if opening else "close"
     for step in range(1, 7):
         angle = sign * 0.25 * step
-        r = _rot_about(axis, angle)
+        r = rot_axis(axis, angle)
         point = anchor + r @ arm * (0.85)
         point[2] = edge[2] if abs(axis[2]) > 0.9 else point[2]
         yield from ctx.goto(point, rot, CLOSE, tol=0.02, max_steps=40, speed=0.6)
         if view.predicate((query, target)):
             break
     yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), rot, OPEN, tol=0.03, max_steps=30)
-    return view.predicate((query, target)) and radius > 0
+    return view.predicate((query, target))
 
-
-def _rot_about(axis: np.ndarray, angle: float) -> np.ndarray:
-    from base_suites.experts.control import rot_axis
-
-    return rot_axis(axis, angle)
 
 
 def turn(ctx: SkillContext, target: str, on: bool) -> Actions:

@@ -89,13 +89,6 @@ def _target_xy(view: SimView, target: str | np.ndarray) -> np.ndarray:
     return view.position(target)[:2]
 
 
-def _support_entity(view: SimView, target: str | np.ndarray) -> str | None:
-    if not isinstance(target, str):
-        return "table"
-    if target in view.regions:
-        return view.region(target).parent
-    return target
-
 
 def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
     # Tilt about the horizontal axis across the fingers: the held object swings out of upright.
@@ -103,7 +96,7 @@ def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
     return grasp_rotation(yaw, axis, angle)
 
 
-def place(ctx: SkillContext, obj: str, target: str | np.ndarray, release_clearance: float = 0.012) -> Actions:
+def place(ctx: SkillContext, obj: str, target: str | np.ndarray) -> Actions:
     """Carry the held `obj` above `target` (a region, an entity or an xy point) and set it down on contact."""
     view = ctx.view
     rot = view.eef_rotation()
@@ -128,7 +121,6 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, release_clearan
             break
     if carry_rot is not upright:
         yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
-    support = _support_entity(view, target)
     if "drop" in ctx.knobs and isinstance(target, str):
         ctx.events.append("drop")
         yield from ctx.hold(OPEN, 10)
@@ -148,7 +140,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, release_clearan
     yield from ctx.hold(OPEN, 10, upright)
     up = view.eef_position() + np.array([0, 0, 0.10])
     yield from ctx.goto(up, upright, OPEN, tol=0.02, max_steps=30)
-    return support is not None
+    return True
 
 
 def knock(ctx: SkillContext, victim: str) -> Actions:
