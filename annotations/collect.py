@@ -79,7 +79,10 @@ def collect_demos(
                     bar.update(1)
                     continue
                 init = i % spec.n_init_states
-                obs, _ = env.reset(options={"init_state": init})
+                # A reset seed per (seed, task, episode): a resumed collection rebuilds the same scenes.
+                reset_seed = int(np.random.SeedSequence([seed, spec.index, i]).generate_state(1)[0])
+                obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
+                layout = env.fixture_layout()
                 expert.reset(env.metadata, episode=i)
                 record = record_episode(env, expert, obs)
                 demo = Demo(
@@ -91,6 +94,7 @@ def collect_demos(
                         "episode": i, "knobs": {k: v for k, v in expert.knobs.items()},
                         "knob_events": list(expert.events), "expert_version": EXPERT_VERSION,
                         "success": record["success"], "perturbation": record["perturbation"],
+                        "reset_seed": reset_seed, "fixture_layout": layout,
                     },
                 )
                 writer.append(demo, env.metadata["state_layout"])

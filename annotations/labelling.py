@@ -1,6 +1,7 @@
 """Annotate a demo file with ITC labels by replaying its stored simulator states.
 
-For each demo the task's env is reset to the demo's init state, then jumped to each stored MuJoCo state
+For each demo the task's env is reset to the demo's init state, its fixtures are put where the recording
+had them (`fixture_layout`: the stored states do not hold it), then jumped to each stored MuJoCo state
 in turn and the ITC monitor judges every transition (s_t, a_t, s_t+1); the state after the last action,
 which the file does not store, is produced by stepping the env once from the last stored state. No
 policy or expert runs, so the same labelling works for our scripted demos and for imported LIBERO
@@ -39,6 +40,11 @@ def replay_verdict(env: LiberoEnv, monitor: ITCMonitor, demo: Demo) -> EpisodeVe
     init = demo.attrs.get("init_state_index")
     valid_init = isinstance(init, (int, np.integer)) and 0 <= int(init) < env.task.n_init_states
     env.reset(options={"init_state": int(init) if valid_init else 0})
+    if demo.attrs.get("fixture_layout"):
+        try:
+            env.set_fixture_layout(demo.attrs["fixture_layout"])
+        except UserInputError as e:
+            raise UserInputError(f"data/{demo.name} attribute 'fixture_layout': {e}") from None
     env.set_sim_state(demo.states[0])
     monitor.reset()
     success = False
@@ -169,7 +175,10 @@ def annotate_file(
             for name in tqdm(source.names[writer.count :], desc="annotate", unit="demo", disable=not progress):
                 demo = source.demo(name)
                 env, monitor = pool.get(demo)
-                verdict = replay_verdict(env, monitor, demo)
+                try:
+                    verdict = replay_verdict(env, monitor, demo)
+                except UserInputError as e:
+                    raise UserInputError(f"{in_path}: {e}") from None
                 verdict = apply_human_labels(verdict, human.get(name, []))
                 writer.append(_labelled(demo, verdict, gamma))
                 records.append({"success": verdict.success, "elegant": verdict.elegant, "violated": verdict.violated})

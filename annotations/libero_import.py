@@ -70,7 +70,14 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
                     raise UserInputError(
                         f"{path}: data/{name}/states has {states.shape[1]} values per step, but task {spec.suite}/{spec.index} has {state_dim}"
                     )
-                demo = replay_states(env, states, actions)
+                model_xml = g.attrs.get("model_file")
+                if isinstance(model_xml, bytes):
+                    model_xml = model_xml.decode()
+                try:
+                    layout = env.fixture_layout_from_xml(model_xml) if model_xml else None
+                except UserInputError as e:
+                    raise UserInputError(f"{path}: data/{name} attribute 'model_file': {e}") from None
+                demo = replay_states(env, states, actions, layout)
                 demo.attrs.update(
                     suite=spec.suite, task_index=spec.index, task_name=spec.name, language_instruction=spec.language,
                     init_state_index=0, seed=0, knobs={}, expert_version="human:libero", source_demo=name,
@@ -86,9 +93,12 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
     return {"out": out, "task": f"{spec.suite}/{spec.index}", "demos": len(names), "success_rate": float(np.mean(successes))}
 
 
-def replay_states(env, states: np.ndarray, actions: np.ndarray) -> Demo:
-    """Observations of stored states; the state after the last action comes from stepping it."""
+def replay_states(env, states: np.ndarray, actions: np.ndarray, layout: dict | None = None) -> Demo:
+    """Observations of stored states; the state after the last action comes from stepping it. `layout`
+    puts the fixtures where the recording had them (else they stand where a reset puts them)."""
     env.reset(options={"init_state": 0})
+    if layout:
+        env.set_fixture_layout(layout)
     obs = np.array([env.set_sim_state(s)["state"] for s in states])
     env.set_sim_state(states[-1])
     last_obs, _, _, _, info = env.step(actions[-1])
@@ -98,4 +108,4 @@ def replay_states(env, states: np.ndarray, actions: np.ndarray) -> Demo:
     dones = np.zeros(len(actions), dtype=np.uint8)
     dones[-1] = 1
     return Demo(name="", actions=actions, states=states, obs=obs, next_obs=next_obs, rewards=rewards, dones=dones,
-                attrs={"success": bool(info["success"]), "perturbation": []})
+                attrs={"success": bool(info["success"]), "perturbation": [], "fixture_layout": env.fixture_layout()})

@@ -6,10 +6,16 @@ object's pose, articulated joints) whose layout is recorded in `metadata["state_
 can check it; optionally an upright `agentview` image. Resets go to a shipped init state and let the
 scene settle (the shipped states are not at rest), and zero the two pieces of solver state LIBERO
 forgets (MuJoCo's warm start, the gripper's last action) so the same seed and actions replay bit-exactly.
+
+LIBERO re-samples where the fixtures (cabinets, racks, stoves) stand on every reset, from NumPy's global
+RNG, and the shipped init states do not record it (they hold joint positions only). Resets therefore
+draw the layout from the episode seed, so the same seed gives the same scene in any process, and
+`fixture_layout()` / `set_fixture_layout()` let replays of stored states rebuild the recorded scene.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from typing import Any
 
 import gymnasium as gym
@@ -25,6 +31,17 @@ OBS_MODES = ("lowdim", "rgb", "both")
 ROBOT_LAYOUT = (("robot0_eef_pos", 3), ("robot0_eef_quat", 4), ("robot0_gripper_qpos", 2), ("robot0_joint_pos", 7))
 SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1.0])
 CAMERA = "agentview"
+
+
+@contextmanager
+def _global_numpy_seeded(seed: int) -> Iterator[None]:
+    """Run LIBERO code that samples from `np.random` with a known seed, leaving the caller's RNG as it was."""
+    saved = np.random.get_state()
+    np.random.seed(seed % 2**32)
+    try:
+        yield
+    finally:
+        np.random.set_state(saved)
 
 
 class LiberoEnv(gym.Env):
@@ -60,7 +77,8 @@ class LiberoEnv(gym.Env):
         if init_state is not None and not 0 <= init_state < len(self._init_states):
             raise UserInputError(f"init_state {init_state} out of range: expected 0..{len(self._init_states) - 1}")
         self._camera_size = camera_size
-        self._env = self._build(plan.env_kwargs)
+        with _global_numpy_seeded(0 if seed is None else int(seed)):
+            self._env = self._build(plan.env_kwargs)
         self.domain = self._env.env
         for p in self.perturbations:
             p.after_build(self.domain)
@@ -136,7 +154,8 @@ class LiberoEnv(gym.Env):
             raise UserInputError(f"init_state {index} out of range: expected 0..{len(self._init_states) - 1}")
         self._init_index = int(index)
         self._episode_seed = int(self.np_random.integers(2**31))
-        self._env.reset()
+        with _global_numpy_seeded(self._episode_seed):
+            self._env.reset()
         self._env.set_init_state(self._init_states[self._init_index])
         self._clear_solver_state()
         for p in self.perturbations:
@@ -230,6 +249,47 @@ class LiberoEnv(gym.Env):
     @property
     def steps(self) -> int:
         return self._steps
+
+    def fixture_layout(self) -> dict[str, list[float]]:
+        """Where each fixture stands: name -> [x, y, z, qw, qx, qy, qz] of its root body (see module doc)."""
+        model = self.domain.sim.model._model
+        return {
+            name: [*map(float, model.body_pos[body]), *map(float, model.body_quat[body])]
+            for name, body in self._fixture_bodies().items()
+        }
+
+    def set_fixture_layout(self, layout: Mapping[str, Sequence[float]]) -> None:
+        """Put the fixtures where `fixture_layout()` recorded them (call after `reset`, before replaying)."""
+        bodies = self._fixture_bodies()
+        model = self.domain.sim.model._model
+        for name, pose in layout.items():
+            if name not in bodies:
+                raise UserInputError(f"fixture layout names {name!r}, which task {self.task.suite}/{self.task.index} does not have")
+            if len(pose) != 7:
+                raise UserInputError(f"fixture layout of {name!r} has {len(pose)} values; expected 7 (x, y, z, qw, qx, qy, qz)")
+            model.body_pos[bodies[name]] = pose[:3]
+            model.body_quat[bodies[name]] = pose[3:]
+        self.domain.sim.forward()
+
+    def fixture_layout_from_xml(self, model_xml: str) -> dict[str, list[float]]:
+        """The fixture layout recorded in a MuJoCo XML (LIBERO's demo files keep one per demo as
+        `model_file`); fixtures the XML does not place keep their current pose."""
+        import xml.etree.ElementTree as ET
+
+        try:
+            root = ET.fromstring(model_xml)
+        except ET.ParseError as e:
+            raise UserInputError(f"model XML does not parse: {e}") from None
+        layout = self.fixture_layout()
+        for name in layout:
+            body = root.find(f".//body[@name='{self.domain.get_object(name).root_body}']")
+            if body is not None and body.get("pos"):
+                quat = body.get("quat") or "1 0 0 0"
+                layout[name] = [float(v) for v in body.get("pos").split()] + [float(v) for v in quat.split()]
+        return layout
+
+    def _fixture_bodies(self) -> dict[str, int]:
+        return {name: int(self.domain.obj_body_id[name]) for name in self.sim.fixtures}
 
     def get_sim_state(self) -> np.ndarray:
         """The flattened MuJoCo state (time, qpos, qvel), as stored in LIBERO's HDF5 `states`."""

@@ -14,7 +14,7 @@ from base_suites.experts import ScriptedExpert
 pytestmark = pytest.mark.sim
 
 
-def _write_libero_file(path, env, states, actions):
+def _write_libero_file(path, env, states, actions, model_xml=None):
     """A file in LIBERO's layout (as its create_dataset script writes them), images included."""
     with h5py.File(path, "w") as f:
         data = f.create_group("data")
@@ -29,6 +29,8 @@ def _write_libero_file(path, env, states, actions):
         demo.create_dataset("rewards", data=np.zeros(len(actions)))
         demo.create_dataset("dones", data=np.zeros(len(actions)))
         demo.attrs["num_samples"] = len(actions)
+        if model_xml is not None:
+            demo.attrs["model_file"] = model_xml
 
 
 def test_imported_demo_reproduces_live_observations(tmp_path):
@@ -47,6 +49,21 @@ def test_imported_demo_reproduces_live_observations(tmp_path):
     np.testing.assert_allclose(demo.obs, live["obs"], atol=1e-6)
     np.testing.assert_allclose(demo.next_obs[:-1], live["next_obs"][:-1], atol=1e-6)
     assert demo.attrs["expert_version"] == "human:libero" and demo.attrs["success"]
+
+
+def test_import_places_fixtures_from_the_recorded_model_xml(tmp_path):
+    env = make_env("libero_goal", 0, seed=0, settle_steps=0)
+    env.reset(seed=5)
+    recorded = env.fixture_layout()
+    states = np.array([env.get_sim_state()] * 3)
+    source = tmp_path / "goal.hdf5"
+    _write_libero_file(source, env, states, np.zeros((3, 7)), env.domain.sim.model.get_xml())
+    import_libero_hdf5(str(source), str(tmp_path / "ours.hdf5"), progress=False)
+    with DemoFile(tmp_path / "ours.hdf5") as f:
+        imported = next(iter(f)).attrs["fixture_layout"]
+    assert imported.keys() == recorded.keys()
+    for name in recorded:
+        np.testing.assert_allclose(imported[name], recorded[name], atol=1e-5)
 
 
 def test_import_refuses_wrong_state_size_and_missing_fields(tmp_path):
