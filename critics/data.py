@@ -5,7 +5,8 @@ Each step t of each demo becomes one transition, in TorchRL's layout (batch = tr
     observation        (D,)  float32  the state encoded by `TaskFeatureEncoder` (padded + task one-hot),
                                       state part normalised with the dataset's mean/std
     action             (A,)  float32  the dataset action mapped onto [-1, 1] with the dataset's bounds
-    mc_return          (1,)  float32  discounted return-to-go of the training reward (Cal-QL's floor;
+    mc_return          (1,)  float32  discounted return-to-go of the training reward, with the critic's
+                                      discount (by default the annotation's; Cal-QL's floor;
                                       NO_FLOOR for demos that end without success)
     next/observation   (D,)  float32  the same encoding of the state after the action
     next/reward        (1,)  float32  the violation penalty r_t - 1 of the elegance reward r_t
@@ -136,19 +137,27 @@ def _column(values: np.ndarray | torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(values).unsqueeze(-1)
 
 
-def load_transitions(paths: Sequence[str]) -> TransitionData:
-    """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions."""
+def load_transitions(paths: Sequence[str], gamma: float | None = None) -> TransitionData:
+    """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
+
+    gamma: the critic's discount (default: the annotation's). A shorter horizon than the annotation's
+    makes Q judge the violations about to happen rather than the rest of the episode, which is what
+    picking among candidate actions at one moment needs; the returns are recomputed with it."""
+    if gamma is not None and not 0.0 < gamma < 1.0:
+        raise UserInputError(f"gamma must lie in (0, 1), got {gamma}")
     if not paths:
         raise UserInputError("no annotated HDF5 files given")
     layouts: dict[str, list] = {}
-    gamma: float | None = None
+    annotation_gamma: float | None = None
     demos: list[_RawDemo] = []
     for path in paths:
         with DemoFile(path, require_labels=True) as f:
             file_gamma = _annotation_gamma(f)
-            if gamma is not None and file_gamma != gamma:
-                raise UserInputError(f"{f.path}: data.annotation gamma is {file_gamma}, but {paths[0]} uses {gamma}; annotate all files with one gamma")
-            gamma = file_gamma
+            if annotation_gamma is not None and file_gamma != annotation_gamma:
+                raise UserInputError(
+                    f"{f.path}: data.annotation gamma is {file_gamma}, but {paths[0]} uses {annotation_gamma}; annotate all files with one gamma"
+                )
+            annotation_gamma = file_gamma
             for key, layout in f.state_layouts.items():
                 if key in layouts and [[str(n), int(s)] for n, s in layout] != [[str(n), int(s)] for n, s in layouts[key]]:
                     raise UserInputError(f"{f.path}: data.state_layouts[{key!r}] differs from the layout of that task in an earlier file")
@@ -167,7 +176,8 @@ def load_transitions(paths: Sequence[str]) -> TransitionData:
     terminal = np.zeros_like(last)
     terminal[last] = [d.success for d in demos]
     done = torch.from_numpy(last)
-    _check_returns(demos, reward2go(reward, done, gamma, time_dim=-1).numpy(), gamma)
+    _check_returns(demos, reward2go(reward, done, annotation_gamma, time_dim=-1).numpy(), annotation_gamma)
+    gamma = annotation_gamma if gamma is None else float(gamma)
     # Train on the violation-penalty form of the elegance reward (r - 1: 0 where all four ITCs hold, -1
     # where one breaks). With r itself, Q counts the kept steps still to come, so it mostly measures how
     # long the episode has left and rewards dawdling; with r - 1 it is minus the discounted violations to

@@ -63,6 +63,7 @@ class TrainConfig:
     tau: float = 0.005
     log_every: int = 100
     checkpoint_every: int = 1000
+    gamma: float | None = None  # None: the annotation's
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every"):
@@ -188,6 +189,7 @@ def train_critic(
     calibrate: bool = True,
     with_lagrange: bool = False,
     log_every: int = 100,
+    gamma: float | None = None,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -196,7 +198,8 @@ def train_critic(
     and action draws; resume: continue from out/checkpoint.pt (else a run refuses a directory that holds
     one); checkpoint_every / log_every: steps between checkpoints / metrics rows; n_actions: N of the
     uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
-    cql_weight, calibrate, with_lagrange: see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
+    cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
+    annotation's; see `critics.data.load_transitions`). Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -205,7 +208,7 @@ def train_critic(
     cfg = TrainConfig(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
-        log_every=log_every, checkpoint_every=checkpoint_every,
+        log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)
@@ -213,7 +216,7 @@ def train_critic(
     if os.path.exists(ckpt_path) and not resume:
         raise UserInputError(f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory")
 
-    data = load_transitions(cfg.paths)
+    data = load_transitions(cfg.paths, cfg.gamma)
     fingerprint = data.fingerprint()
     run = _Run(cfg, data)
     start = 0

@@ -131,6 +131,20 @@ def test_episode_ends_and_returns(annotated):
     assert data.gamma == 0.9
 
 
+def test_critic_discount_can_differ_from_the_annotations(annotated):
+    data = load_transitions([annotated], gamma=0.5)
+    raw = read_raw(annotated)
+    success = np.array([d["rewards"][-1] > 0 for d in raw])
+    expected = np.concatenate([
+        discounted_returns(d["elegance_reward"] - 1.0, 0.5) if ok else np.full(len(d["actions"]), NO_FLOOR)
+        for d, ok in zip(raw, success)
+    ])
+    assert data.gamma == 0.5
+    assert np.allclose(data.transitions["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
+    with pytest.raises(UserInputError, match="gamma must lie in"):
+        load_transitions([annotated], gamma=1.0)
+
+
 def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):
     plain = write_annotated(tmp_path / "plain.hdf5", labelled=False)
     with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):
