@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
+from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, nearest_grasp_rotation, rot_axis, rot_z
 from base_suites.experts.skills import Actions, SkillContext
 from base_suites.sim_view import SimView
 
@@ -141,7 +141,7 @@ def turn(ctx: SkillContext, target: str, on: bool) -> Actions:
     # Fingers close across the bar's thin horizontal side.
     yaw = 0.0 if extent[1] <= extent[0] else np.pi / 2
     grip = np.array([centre[0], centre[1], top[:, 2].max() - 0.015])
-    rot = grasp_rotation(yaw)
+    rot = nearest_grasp_rotation(yaw, view.eef_rotation())
     yield from ctx.goto(np.array([*grip[:2], grip[2] + 0.10]), rot, OPEN, tol=0.015, max_steps=150)
     yield from ctx.goto(grip, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
     yield from ctx.hold(CLOSE, 10, rot)

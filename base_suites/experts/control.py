@@ -48,6 +48,14 @@ def grasp_rotation(yaw: float, tilt_axis: np.ndarray | None = None, tilt: float 
     return r
 
 
+def nearest_grasp_rotation(yaw: float, current: np.ndarray) -> np.ndarray:
+    """`grasp_rotation(yaw)` or the same grasp with the hand turned half a turn (a parallel gripper is
+    symmetric), whichever is the smaller rotation from `current`: after a knob turn the wrist is already
+    twisted, and turning it further runs the last joint into its limit, where OSC stops tracking."""
+    options = [grasp_rotation(yaw), grasp_rotation(yaw + np.pi)]
+    return min(options, key=lambda r: float(np.linalg.norm(rotation_error(r, current))))
+
+
 def finger_axis(yaw: float) -> np.ndarray:
     """World direction along which the fingers close for a given grasp yaw."""
     return rot_z(yaw) @ np.array([0.0, 1.0, 0.0])

@@ -1,9 +1,11 @@
 """Grasp and placement geometry from the simulator's collision shapes.
 
 A general grasp chooser instead of per-task trajectories: for every candidate yaw it checks that the
-object fits between the fingers (the Panda opens ~8 cm) or, for wide round objects (bowls, plates),
-grasps the rim radially; it then keeps the candidate whose hand footprint (~21 cm along the closing
-direction) stays clearest of the neighbours, since the hand hitting neighbours is the main failure.
+object fits between the fingers (the Panda opens ~8 cm); objects too wide for that are held by a slender
+part the fingers can close around without touching the rest of the object (a moka pot's handle) or, if
+they are open at the top (bowls, plates), by the rim, radially. It then keeps the candidate whose hand
+footprint (~21 cm along the closing direction) stays clearest of the neighbours, since the hand hitting
+neighbours is the main failure.
 """
 from __future__ import annotations
 
@@ -17,6 +19,9 @@ from base_suites.sim_view import SimView
 MAX_WIDTH = 0.072  # widest object the fingers close around reliably
 HAND_HALF_LENGTH = 0.105  # hand extent along the closing direction, each side of the centre
 HAND_HALF_WIDTH = 0.035
+PART_MAX_WIDTH = 0.03  # widest part (handle) pinched on its own
+FINGER_HALF_WIDTH = 0.009  # finger pad extent across the closing direction
+FINGER_THICKNESS = 0.022  # room a finger needs beside the pinched part
 YAWS = np.deg2rad(np.arange(-90, 90, 15))
 
 
@@ -84,9 +89,63 @@ def _obstacle_points(view: SimView, entity: str) -> np.ndarray:
     return np.concatenate(others) if others else np.zeros((0, 3))
 
 
+def _covers_centre(parts: np.ndarray, shape: Shape) -> bool:
+    """Whether some part above mid-height spans the object's centre (a lid or body, not an open bowl)."""
+    centre, mid = shape.centre[:2], shape.bottom + 0.5 * shape.height
+    for pts in parts:
+        low, high = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+        if pts[:, 2].max() > mid and np.all(low <= centre) and np.all(centre <= high):
+            return True
+    return False
+
+
+_LATTICE = np.array([[a, b, c] for a in np.linspace(-1, 1, 5) for b in np.linspace(-1, 1, 5) for c in np.linspace(-1, 1, 3)])
+
+
+def fill_boxes(parts: np.ndarray) -> np.ndarray:
+    """Points through the volume of each box given by its 8 corners (SimView order: x, y, z nested),
+    so checks see faces between corners."""
+    origin = parts[:, 0]
+    ex, ey, ez = (parts[:, 4] - origin) / 2, (parts[:, 2] - origin) / 2, (parts[:, 1] - origin) / 2
+    centre = origin + ex + ey + ez
+    filled = centre[:, None] + _LATTICE[None, :, :1] * ex[:, None] + _LATTICE[None, :, 1:2] * ey[:, None] + _LATTICE[None, :, 2:] * ez[:, None]
+    return filled.reshape(-1, 3)
+
+
+def _part_pinches(parts: np.ndarray) -> list[Grasp]:
+    """Pinches of one slender part (a handle): the fingers close across it and, beside it, find no
+    other part of the object above the fingertips."""
+    everything = fill_boxes(parts)
+    grasps = []
+    for pts in parts:
+        centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
+        top, bottom = float(pts[:, 2].max()), float(pts[:, 2].min())
+        if top - bottom < 0.01:
+            continue
+        z = max(bottom + 0.008, top - 0.015)
+        above = everything[everything[:, 2] > z - 0.005]
+        best: tuple[float, float] | None = None  # (width, yaw) of the narrowest closure that fits
+        for yaw in YAWS:
+            axis = finger_axis(yaw)
+            width = _extent(pts, axis)
+            if width > PART_MAX_WIDTH or (best is not None and width >= best[0]):
+                continue
+            rel = above[:, :2] - centre[:2]
+            along = np.abs(rel @ axis[:2])
+            across = np.abs(rel @ np.array([-axis[1], axis[0]]))
+            in_finger = (across < FINGER_HALF_WIDTH) & (along > width / 2 + 0.003) & (along < width / 2 + FINGER_THICKNESS)
+            if not in_finger.any():
+                best = (width, float(yaw))
+        if best is not None:
+            grasps.append(Grasp(np.array([centre[0], centre[1], z]), best[1], 0.0, rim=False))
+    return grasps
+
+
 def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
-    """The clearest feasible top-down grasp of an object (pinch across a narrow side, or a rim grasp)."""
+    """The clearest feasible top-down grasp of an object (pinch across a narrow side, a slender part,
+    or the rim of an open object)."""
     points = view.geom_points(entity)
+    parts = points.reshape(-1, 8, 3)
     shape = Shape(points.min(axis=0), points.max(axis=0))
     obstacles = _obstacle_points(view, entity)
     centre = shape.centre
@@ -97,7 +156,7 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
         if width <= MAX_WIDTH:
             z = max(shape.bottom + 0.012, shape.top - min(0.035, shape.height * 0.5))
             pinches.append(Grasp(np.array([centre[0], centre[1], z]), float(yaw), 0.0, rim=False))
-        elif shape.height > 0.03:
+        elif shape.height > 0.03 and not _covers_centre(parts, shape):
             # Rim grasp of a wide round object: the fingers straddle the wall along the closing axis.
             radius = width / 2
             z = shape.top - 0.018
@@ -119,7 +178,7 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
 
     scored = [score(c) for c in pinches]
     if not scored or max(v for v, _ in scored) <= 0.05:  # no pinch clear of the neighbours
-        scored += [score(c) for c in rims]
+        scored += [score(c) for c in rims] if rims else [score(c) for c in _part_pinches(parts)]
     if not scored:
         raise RuntimeError(f"no top-down grasp fits {entity}")
     return max(scored, key=lambda vs: vs[0])[1]

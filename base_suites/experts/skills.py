@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, rotation_error
-from base_suites.experts.geometry import carry_height, choose_grasp, shape_of
+from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rotation_error
+from base_suites.experts.geometry import carry_height, choose_grasp, fill_boxes, shape_of
 from base_suites.sim_view import SimView
 
 Actions = Generator[np.ndarray, None, bool]
@@ -59,7 +59,7 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
     view = ctx.view
     for attempt in range(attempts):
         grasp = choose_grasp(view, obj)
-        rot = grasp_rotation(grasp.yaw)
+        rot = nearest_grasp_rotation(grasp.yaw, view.eef_rotation())
         hover = max(view.eef_position()[2], grasp.position[2] + 0.12)
         target = grasp.position.copy()
         if "regrasp" in ctx.knobs and attempt == 0:
@@ -81,12 +81,43 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
     return False
 
 
-def _target_xy(view: SimView, target: str | np.ndarray) -> np.ndarray:
+def _target_xy(view: SimView, target: str | np.ndarray, held: str | None = None) -> np.ndarray:
     if not isinstance(target, str):
         return np.asarray(target, dtype=float)[:2]
     if target in view.regions:
-        return view.region(target).position[:2]
+        return _free_spot(view, target, held) if held is not None else view.region(target).position[:2]
     return view.position(target)[:2]
+
+
+def _free_spot(view: SimView, region_name: str, held: str, gap: float = 0.015) -> np.ndarray:
+    """Where in a region the held object's footprint stays clear of what already stands there (both moka
+    pots go on one burner): the region's centre when it is free, else the clear spot nearest to it, else
+    the spot with the most room."""
+    region = view.region(region_name)
+    centre = region.position[:2]
+    if region.half_size is None:
+        return centre
+    footprint = view.geom_points(held)[:, :2] - view.position(held)[:2]
+    floor = region.position[2] + 0.01
+    others = [fill_boxes(view.geom_points(o).reshape(-1, 8, 3)) for o in view.objects if o != held]
+    others = np.concatenate([p[p[:, 2] > floor][:, :2] for p in others] or [np.zeros((0, 2))])
+    if len(others) == 0:
+        return centre
+    axes = region.rotation[:2, :2]
+    best, best_room = centre, -np.inf
+    grid = np.linspace(-1, 1, 9)
+    spots = sorted(
+        (centre + axes @ (np.array([u, v]) * region.half_size[:2]) for u in grid for v in grid),
+        key=lambda p: float(np.linalg.norm(p - centre)),
+    )
+    for spot in spots:
+        placed = footprint + spot
+        room = float(np.min(np.linalg.norm(others[:, None, :] - placed[None, :, :], axis=-1)))
+        if room > gap:
+            return spot
+        if room > best_room:
+            best, best_room = spot, room
+    return best
 
 
 
@@ -102,7 +133,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray) -> Actions:
     rot = view.eef_rotation()
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]) - np.pi / 2)
     upright = grasp_rotation(yaw)
-    goal_xy = _target_xy(view, target)
+    goal_xy = _target_xy(view, target, held=obj)
     if "misplace" in ctx.knobs and isinstance(target, str):
         angle = ctx.rng.uniform(0, 2 * np.pi)
         goal_xy = goal_xy + ctx.rng.uniform(0.05, 0.08) * np.array([np.cos(angle), np.sin(angle)])
