@@ -24,6 +24,7 @@ _LAZY = {
     "summarize": "elegant.metrics",
     "lifelong_metrics": "elegant.metrics",
     "robustness_metrics": "elegant.metrics",
+    "run_lifelong": "elegant.lifelong",
     "compare_runs": "elegant.report",
     "write_run_report": "elegant.report",
     "quickstart": "elegant.quickstart",

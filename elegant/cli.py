@@ -208,6 +208,28 @@ def _eval(args: argparse.Namespace) -> dict:
     return {k: v for k, v in summary.items() if k != "per_task"}
 
 
+def _lifelong_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("data", nargs="+", help="demos HDF5 file(s) holding the demos of every task (from elegant demos)")
+    p.add_argument("--suite", required=True)
+    p.add_argument("--tasks", required=True, help="comma-separated task indices in learning order, e.g. 0,1,2")
+    p.add_argument("--out", required=True, help="run directory")
+    p.add_argument("--epochs", type=int, default=50, help="training epochs per task")
+    p.add_argument("--eval-every", type=int, default=5, help="evaluate the task being learned every E epochs (and before training on it)")
+    p.add_argument("--episodes", type=int, default=20, help="episodes per evaluation")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-steps", type=int, help="episode horizon (default: the suite's)")
+    p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
+
+
+@command("lifelong", "LIBERO's lifelong protocol (sequential fine-tuning): FWT, NBT, AUC from success and elegant success")(_lifelong_args)
+def _lifelong(args: argparse.Namespace) -> dict:
+    from elegant.lifelong import run_lifelong
+
+    result = run_lifelong(args.suite, _task_list(args.tasks), args.data, args.out, epochs=args.epochs, eval_every=args.eval_every,
+                          episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, resume=args.resume)
+    return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
+
+
 def _report_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("runs", nargs="+", help="run directories from elegant eval")
     p.add_argument("--out", help="directory for the comparison (markdown + PNG)")

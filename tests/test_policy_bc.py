@@ -178,6 +178,11 @@ def test_load_refuses_missing_and_corrupt_dirs(policy_dir, tmp_path):
         fh.write(b"x")
     with pytest.raises(UserInputError, match="does not match config.json"):
         load_policy(str(broken))
+    good = json.load(open(os.path.join(policy_dir, "config.json")))
+    (broken / "model.pt").write_bytes(open(os.path.join(policy_dir, "model.pt"), "rb").read())
+    (broken / "config.json").write_text(json.dumps({k: v for k, v in good.items() if k != "features"}))
+    with pytest.raises(UserInputError, match="config.json: missing field 'features'"):
+        load_policy(str(broken))
     (broken / "config.json").write_text("{not json")
     with pytest.raises(UserInputError, match="corrupt policy config"):
         load_policy(str(broken))

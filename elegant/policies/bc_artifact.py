@@ -52,7 +52,7 @@ def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
     """Load a policy directory, refusing a missing, foreign, corrupt or inconsistent one in one line."""
     config = read_artifact_config(path, kind="policy", config_file=CONFIG_FILE, weights_file=MODEL_FILE, fmt=ARTIFACT_FORMAT,
                                   hint="the output of `elegant train-policy`")
-    model_path = os.path.join(path, MODEL_FILE)
+    model_path, config_path = os.path.join(path, MODEL_FILE), os.path.join(path, CONFIG_FILE)
     with open(model_path, "rb") as fh:
         payload = fh.read()
     if hashlib.sha256(payload).hexdigest() != config.get("model_sha256"):

@@ -5,13 +5,21 @@ atomically) holds the network, Adam and cosine-schedule state, the shuffling gen
 history. The network is initialised under its own seed inside a forked RNG, and shuffling draws only
 from that generator, so a resumed run replays exactly what the uninterrupted run would have done. A
 checkpoint is only resumed with the same data and hyper-parameters; anything else is refused.
+
+Sequential fine-tuning (the lifelong protocol, `elegant.lifelong`) needs three more things: training on
+some tasks of multi-task files (`tasks`), an input encoder fixed over more tasks than a stage trains on
+(`features`) or inherited from the previous network (`init_from`, which also brings its weights), and
+the network as of intermediate epochs (`snapshot_epochs`, published like the final policy, because the
+protocol evaluates them and keeps the best).
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -21,13 +29,14 @@ from tqdm import tqdm
 
 from base_suites.errors import UserInputError
 from base_suites.atomic import atomic_write
-from elegant.policies.bc_artifact import torch_bytes, write_artifact
+from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
 from elegant.policies.protocol import ACTION_DIM
 
 CHECKPOINT_FILE = "checkpoint.pt"
+Init = tuple[BCNet, BCFeatures, dict[str, Any]]  # what read_artifact returns for `init_from`
 
 
 @dataclass(frozen=True)
@@ -101,6 +110,54 @@ def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
     return state
 
 
+def snapshot_dir(out: str, epoch: int) -> str:
+    """Where `train_policy(..., snapshot_epochs=...)` publishes the policy as of `epoch` (0: before training)."""
+    return os.path.join(out, f"epoch_{int(epoch)}")
+
+
+def select_tasks(data: DemoSet, tasks: Sequence[str] | None) -> DemoSet:
+    """The demos of `tasks` only (None: all), refusing a task the files hold no demo of."""
+    if tasks is None:
+        return data
+    wanted = list(dict.fromkeys(tasks))
+    episodes = [e for e in data.episodes if e.task in wanted]
+    missing = [t for t in wanted if t not in {e.task for e in episodes}]
+    if missing:
+        files = ", ".join(f["path"] for f in data.files)
+        raise UserInputError(f"{files}: no demos of task {', '.join(missing)}; found only {', '.join(sorted(data.layouts))}")
+    return DemoSet({k: data.layouts[k] for k in wanted}, episodes, data.files)
+
+
+def _input_features(data: DemoSet, cfg: BCConfig, features: BCFeatures | None, init: Init | None, init_from: str | None) -> BCFeatures:
+    """Fit the features on the data unless they are fixed by the caller or come with the init network."""
+    if init is not None:
+        if features is not None:
+            raise UserInputError("train_policy: give features or init_from, not both (init_from brings its policy's features)")
+        features = init[1]
+    elif features is None:
+        return BCFeatures.fit(data, history=cfg.history, min_std=cfg.obs_min_std)
+    where = init_from or "train_policy: features"
+    if features.history != cfg.history:
+        raise UserInputError(f"{where}: input history is {features.history} states but this run has history={cfg.history}")
+    for key, layout in data.layouts.items():
+        if features.encoder.layouts.get(key) != layout:
+            raise UserInputError(f"{where}: the input encoder does not know task {key} with the layout of the demo files")
+    return features
+
+
+def _start_from(net: BCNet, init: Init, model_spec: dict[str, Any], init_from: str) -> None:
+    """Copy the init network's weights into `net`, refusing a network of another shape."""
+    old = init[2]["model"]
+    for key, value in model_spec.items():
+        if old.get(key) != value:
+            raise UserInputError(f"{init_from}: model.{key} is {old.get(key)!r} but this run needs {value!r}")
+    net.load_state_dict(init[0].state_dict())
+
+
+def _digest(obj: Any) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()
+
+
 def train_policy(
     paths: Sequence[str],
     out: str,
@@ -119,27 +176,49 @@ def train_policy(
     grad_clip: float = 100.0,
     progress: bool = True,
     on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
+    tasks: Sequence[str] | None = None,
+    features: BCFeatures | None = None,
+    init_from: str | None = None,
+    snapshot_epochs: Collection[int] = (),
 ) -> dict[str, Any]:
     """Train a BC-GMM policy on the demos in `paths` and write it to the directory `out`.
 
     Returns a dict: out, epochs, resumed_from_epoch, loss_history (mean training NLL per epoch), final_nll,
     num_demos, num_samples, tasks, seconds. `on_epoch_end` receives {"epoch", "nll"} after each epoch's
     checkpoint is on disk (for logging; an exception raised there stops training like a crash would).
+
+    Fine-tuning: `tasks` (task keys) trains on those tasks' demos only; `features` fixes the model input
+    instead of fitting it on the data (e.g. fitted over more tasks than this run trains on); `init_from`
+    starts from a policy directory's weights and features instead of a fresh network (not with
+    `features`); `snapshot_epochs` also publishes the policy as of these epochs (0: before training) in
+    `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
+    resumed checkpoint must match.
     """
     cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip)
     cfg.validate()
+    snapshots = set(snapshot_epochs)
+    if any(int(e) != e or not 0 <= e <= cfg.epochs for e in snapshots):
+        raise UserInputError(f"train_policy: snapshot_epochs must be epochs in 0..{cfg.epochs}, got {sorted(snapshots)}")
     if os.path.exists(out) and not os.path.isdir(out):
         raise UserInputError(f"{out}: exists and is not a directory")
     os.makedirs(out, exist_ok=True)
     started = time.perf_counter()
-    data = load_demos(paths)
-    features = BCFeatures.fit(data, history=cfg.history, min_std=cfg.obs_min_std)
+    data = select_tasks(load_demos(paths), tasks)
+    init = read_artifact(init_from) if init_from is not None else None
+    origin = {  # what this run starts from beyond the files and the config: recorded, and checked on resume
+        "tasks": None if tasks is None else list(data.layouts),
+        "features": None if features is None else _digest(features.to_dict()),
+        "init_from": None if init is None else {"path": os.path.abspath(init_from), "model_sha256": init[2]["model_sha256"]},
+    }
+    features = _input_features(data, cfg, features, init, init_from)
     windows = _Windows(data, features)
     model_spec = {"input_dim": features.input_dim, "hidden": list(cfg.hidden), "action_dim": ACTION_DIM, "modes": cfg.modes, "min_std": cfg.min_std}
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
         net = BCNet(features.input_dim, hidden=cfg.hidden, modes=cfg.modes, min_std=cfg.min_std)
+    if init is not None:
+        _start_from(net, init, model_spec, init_from)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps_per_epoch = math.ceil(len(windows) / cfg.batch_size)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=cfg.epochs * steps_per_epoch)
@@ -147,7 +226,14 @@ def train_policy(
     losses: list[float] = []
 
     checkpoint = os.path.join(out, CHECKPOINT_FILE)
-    fingerprint = {"config": asdict(cfg), "data": data.files}
+    fingerprint = {"config": asdict(cfg), "data": data.files, **origin}
+
+    def publish(directory: str) -> None:
+        """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
+        os.makedirs(directory, exist_ok=True)
+        training = {"config": asdict(cfg), "data": data.files, "loss_history": list(losses), "num_samples": len(windows), **origin}
+        write_artifact(directory, net, features, model_spec, training)
+
     start_epoch = 0
     if resume and os.path.exists(checkpoint):
         state = _load_checkpoint(checkpoint, fingerprint)
@@ -156,6 +242,8 @@ def train_policy(
         scheduler.load_state_dict(state["scheduler"])
         generator.set_state(state["generator"])
         losses, start_epoch = list(state["losses"]), int(state["epoch"])
+    if start_epoch == 0 and 0 in snapshots:
+        publish(snapshot_dir(out, 0))
 
     bar = tqdm(total=cfg.epochs * steps_per_epoch, initial=start_epoch * steps_per_epoch, disable=not progress, desc="train-policy", unit="batch")
     net.train()
@@ -174,6 +262,8 @@ def train_policy(
             bar.update(1)
         losses.append(total / len(windows))
         bar.set_postfix(epoch=epoch + 1, nll=f"{losses[-1]:.3f}")
+        if epoch + 1 in snapshots:  # before the checkpoint: a crash in between redoes this epoch and rewrites it
+            publish(snapshot_dir(out, epoch + 1))
         _save_checkpoint(checkpoint, {
             "epoch": epoch + 1, "model": net.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
             "generator": generator.get_state(), "losses": losses, "fingerprint": fingerprint,
@@ -194,6 +284,5 @@ def train_policy(
         "tasks": list(features.encoder.tasks),
         "seconds": time.perf_counter() - started,
     }
-    training = {"config": asdict(cfg), "data": data.files, "loss_history": losses, "num_samples": len(windows)}
-    write_artifact(out, net, features, model_spec, training)
+    publish(out)
     return result

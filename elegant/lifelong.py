@@ -1,0 +1,313 @@
+"""LIBERO's lifelong-learning protocol (Liu et al. 2023), reported from success and from elegant success.
+
+K tasks of one suite are learned in order by ONE BC-GMM network. The algorithm is sequential fine-tuning
+(LIBERO's "SeqL" baseline): task k starts from the network kept after task k-1. The protocol around it
+follows LIBERO's `Sequential.learn_one_task` and `compute_metric`:
+
+- The input covers all K tasks from the start: the task one-hot is over the K tasks, and each task's
+  normalisation statistics are fitted on that task's demos. This needs every task's demos up front (the
+  user passes all demo files at once), which is what LIBERO does too, as its data are all on disk; the
+  statistics describe observation ranges only, nothing a later task's training learns.
+- While learning task k, the network is evaluated on task k before any training on it (e = 0) and after
+  every `eval_every` epochs: C[k, e] from success and C_elegant[k, e] from ESR.
+- The network kept after task k is the first best of these checkpoints by success, as LIBERO keeps its
+  best checkpoint ("as if it stopped learning there"; this is also why the metrics clamp C after its
+  best point). The next task starts from it, and S uses it.
+- After task k the kept network is evaluated on every task j <= k: S[k, j] and S_elegant[k, j]. S[k, k]
+  is the evaluation of the kept checkpoint on task k that already ran while learning it (episode starts
+  depend only on the seed, and the policy acts deterministically), so it is read, not run again.
+- FWT, NBT and AUC come from `elegant.metrics.lifelong_metrics`, once on (S, C), once on the elegant pair
+  (which clamps C_elegant at its own best point, while S_elegant uses the checkpoint kept by success).
+
+Layout of OUT (k is the position in the learning order, e an evaluation epoch)::
+
+    config.json                    the run's settings; a resumed run must match them
+    stages/task_<k>/               `train_policy` output of task k (checkpoint.pt, final policy) with
+      epoch_<e>/                   the policy as of each evaluation epoch
+    evals/task_<k>/epoch_<e>/      `evaluate` run of that snapshot on task k (C)
+    evals/after_task_<k>/          `evaluate` run of the network kept after task k on tasks before it (S)
+    lifelong.json                  config, S, C, S_elegant, C_elegant, kept epochs, metrics, metrics_elegant
+    report.md, success_matrix.png, learning_curves.png
+
+Resuming (`resume=True`) skips finished stages and finished evaluations and continues a killed training
+stage from its checkpoint, to the same numbers.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from annotations.format import task_key
+from base_suites import get_task
+from base_suites.atomic import atomic_write, atomic_write_json, read_json_file
+from base_suites.errors import UserInputError
+from elegant.evaluation import evaluate
+from elegant.metrics import lifelong_metrics
+from elegant.policies.bc_data import load_demos
+from elegant.policies.bc_features import BCFeatures
+from elegant.policies.bc_train import BCConfig, select_tasks, snapshot_dir, train_policy
+from elegant.report import _pct, _save, _table
+
+
+@dataclass
+class _Run:
+    """What every stage needs: the settings, the fixed input features and the networks kept so far."""
+
+    out: Path
+    config: dict[str, Any]
+    paths: list[str]
+    features: BCFeatures
+    status: Callable[[str], None]
+    kept: list[str] = field(default_factory=list)
+
+    def stage_dir(self, k: int) -> str:
+        return str(self.out / "stages" / f"task_{k}")
+
+
+def train_stage_sequential(run: _Run, k: int) -> None:
+    """SeqL: fine-tune the network kept after task k-1 on task k's demos (task 0 starts from a fresh
+    network over the features of all K tasks); snapshots at the evaluation epochs."""
+    cfg = run.config
+    start: dict[str, Any] = {"features": run.features} if k == 0 else {"init_from": run.kept[k - 1]}
+    train_policy(run.paths, run.stage_dir(k), epochs=cfg["epochs"], seed=cfg["seed"], resume=True, progress=False,
+                 tasks=[cfg["task_keys"][k]], snapshot_epochs=cfg["eval_epochs"],
+                 on_epoch_end=lambda info: run.status(f"{cfg['task_keys'][k]}: epoch {info['epoch']}/{cfg['epochs']}, nll {info['nll']:.3f}"),
+                 **start)
+
+
+# How each algorithm trains stage k into `run.stage_dir(k)`; another lifelong algorithm slots in here.
+STAGE_TRAINERS: dict[str, Callable[[_Run, int], None]] = {"sequential": train_stage_sequential}
+
+
+def _positive(**values: Any) -> None:
+    """Refuse a non-positive count before any work starts (training comes before the first evaluation)."""
+    for name, value in values.items():
+        if int(value) != value or value < 1:
+            raise UserInputError(f"lifelong: {name} must be a positive integer, got {value!r}")
+
+
+def _task_indices(suite: str, tasks: Sequence[int | str]) -> list[int]:
+    """Suite indices of `tasks` in learning order, refusing an empty list, unknown tasks and repeats."""
+    if not tasks:
+        raise UserInputError("lifelong: expected at least one task")
+    indices = [get_task(suite, t).index for t in tasks]
+    repeated = sorted({i for i in indices if indices.count(i) > 1})
+    if repeated:
+        raise UserInputError(f"lifelong: task {repeated[0]} is listed more than once; each task is learned once")
+    return indices
+
+
+def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
+    """Never mix runs: a new run needs an empty OUT, a resumed one the settings of OUT/config.json."""
+    path = out / "config.json"
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"{out}: exists and is not a directory")
+    if resume and path.exists():
+        old = read_json_file(path, "lifelong config")
+        for key in sorted(set(old) | set(config)):
+            if old.get(key) != config.get(key):
+                raise UserInputError(f"{path}: field {key!r} is {old.get(key)!r} but this run has {config.get(key)!r}; "
+                                     "resume only with the same settings")
+    elif out.exists() and any(out.iterdir()):
+        hint = "resume it (--resume)" if path.exists() else "it holds no lifelong run"
+        raise UserInputError(f"{out}: not empty ({hint}); choose another directory")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, config)
+
+
+def _evaluate(run: _Run, policy: str, tasks: list[int], run_dir: Path) -> dict[str, Any]:
+    """One base-mode evaluation run without critic; a finished run directory is read back, not re-run."""
+    cfg = run.config
+    summary = run_dir / "summary.json"
+    if summary.exists():
+        return read_json_file(summary, "evaluation summary")
+    return evaluate(cfg["suite"], tasks, policy, None, mode="base", episodes=cfg["episodes"], seed=cfg["seed"], out=run_dir,
+                    resume=True, progress=False, max_steps=cfg["max_steps"])
+
+
+def _rates(summary: dict[str, Any], key: str) -> tuple[float, float]:
+    block = summary["per_task"][key]
+    return block["success_rate"], block["esr"]
+
+
+def _learn_and_measure(run: _Run, k: int, C: np.ndarray, S: np.ndarray) -> int:
+    """Stage k of the protocol: train (unless done), fill C[:, k] and S[:, k, :k+1]; returns the kept epoch.
+
+    C and S hold success in [0] and ESR in [1].
+    """
+    cfg, indices, keys = run.config, run.config["tasks"], run.config["task_keys"]
+    stage = run.stage_dir(k)
+    if not os.path.exists(os.path.join(stage, "config.json")):  # train_policy publishes the final policy last
+        run.status(f"{keys[k]}: training")
+        STAGE_TRAINERS[cfg["algorithm"]](run, k)
+    for i, epoch in enumerate(cfg["eval_epochs"]):
+        run.status(f"{keys[k]}: evaluating epoch {epoch}")
+        summary = _evaluate(run, snapshot_dir(stage, epoch), [indices[k]], run.out / "evals" / f"task_{k}" / f"epoch_{epoch}")
+        C[:, k, i] = _rates(summary, keys[k])
+    best = int(np.argmax(C[0, k]))  # the first best, as LIBERO replaces its checkpoint only on a strict gain
+    run.kept.append(snapshot_dir(stage, cfg["eval_epochs"][best]))
+    S[:, k, k] = C[:, k, best]
+    if k:
+        run.status(f"{keys[k]} learned: evaluating the {k} earlier task(s)")
+        summary = _evaluate(run, run.kept[k], indices[:k], run.out / "evals" / f"after_task_{k}")
+        for j in range(k):
+            S[:, k, j] = _rates(summary, keys[j])
+    return cfg["eval_epochs"][best]
+
+
+def run_lifelong(
+    suite: str,
+    tasks: Sequence[int | str],
+    demo_paths: Sequence[str],
+    out: str | os.PathLike,
+    *,
+    epochs: int,
+    eval_every: int,
+    episodes: int,
+    seed: int,
+    max_steps: int | None = None,
+    progress: bool = True,
+    resume: bool = False,
+) -> dict[str, Any]:
+    """Learn `tasks` of `suite` in order with sequential fine-tuning and measure LIBERO's lifelong metrics.
+
+    `demo_paths`: demo HDF5 files (from `elegant demos`) holding the demos of every task; task k learns
+    from the demos with its task key. `epochs` per task, evaluating the current task every `eval_every`
+    epochs (`epochs` must be a multiple) and before training on it; `episodes` per evaluation, episode
+    starts from `seed`; `max_steps` caps each episode (default: the suite's horizon). Writes OUT as the
+    module docstring describes and returns the content of OUT/lifelong.json.
+    """
+    _positive(epochs=epochs, eval_every=eval_every, episodes=episodes, **({} if max_steps is None else {"max_steps": max_steps}))
+    if epochs % eval_every:
+        raise UserInputError(f"lifelong: epochs ({epochs}) must be a multiple of eval_every ({eval_every}), "
+                             "so that the last epoch is evaluated like LIBERO's 50 epochs every 5")
+    indices = _task_indices(suite, tasks)
+    keys = [task_key(suite, i) for i in indices]
+    if isinstance(demo_paths, (str, os.PathLike)) or not demo_paths:
+        raise UserInputError("lifelong: expected a non-empty list of demo files")
+    paths = [os.fspath(p) for p in demo_paths]
+    data = select_tasks(load_demos(paths), keys)
+    defaults = BCConfig(epochs=epochs, seed=seed)
+    features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
+    config = {
+        "protocol": "LIBERO lifelong (Liu et al. 2023)", "algorithm": "sequential", "suite": suite, "tasks": indices,
+        "task_keys": keys, "data": data.files, "epochs": int(epochs), "eval_every": int(eval_every),
+        "eval_epochs": list(range(0, int(epochs) + 1, int(eval_every))), "episodes": int(episodes), "seed": int(seed),
+        "max_steps": max_steps,
+    }
+    out = Path(out)
+    _prepare(out, config, resume)
+    K, E = len(keys), len(config["eval_epochs"])
+    C = np.zeros((2, K, E))
+    S = np.full((2, K, K), np.nan)
+    kept_epochs = []
+    with tqdm(total=K, desc="lifelong", unit="task", disable=not progress) as bar:
+        run = _Run(out, config, paths, features, bar.set_postfix_str)
+        for k in range(K):
+            kept_epochs.append(_learn_and_measure(run, k, C, S))
+            bar.update(1)
+    result = {
+        "config": config,
+        "kept_epochs": kept_epochs,
+        "kept_policies": run.kept,
+        "S": _matrix(S[0]), "C": C[0].tolist(), "S_elegant": _matrix(S[1]), "C_elegant": C[1].tolist(),
+        "metrics": lifelong_metrics(S[0], C[0]),
+        "metrics_elegant": lifelong_metrics(S[1], C[1]),
+    }
+    atomic_write_json(out / "lifelong.json", result)
+    _write_report(out, result, S, C)
+    return result
+
+
+def _matrix(S: np.ndarray) -> list[list[float | None]]:
+    """S as JSON: None where task j was not yet learned (i < j), since JSON has no NaN."""
+    return [[None if np.isnan(v) else float(v) for v in row] for row in S]
+
+
+# ---- report ----------------------------------------------------------------------------------------
+
+def _plot_matrices(S: np.ndarray, labels: list[str], path: Path) -> Path:
+    """Heatmaps of S from success and from ESR; row i: after learning task i, column j: evaluated task."""
+    from matplotlib.figure import Figure
+
+    K = len(labels)
+    fig = Figure(figsize=(3.0 + 2.2 * max(K, 2), 1.2 + 1.0 * max(K, 2)), layout="constrained")
+    axes = fig.subplots(1, 2, sharey=True)
+    for ax, matrix, title in zip(axes, S, ("success S", "elegant success S_elegant")):
+        image = ax.imshow(np.ma.masked_invalid(matrix), vmin=0.0, vmax=1.0, cmap="viridis")
+        for i, j in zip(*np.nonzero(~np.isnan(matrix))):
+            ax.text(j, i, f"{matrix[i, j]:.2f}", ha="center", va="center", fontsize=8, color="w" if matrix[i, j] < 0.6 else "k")
+        ax.set_xticks(range(K), labels, rotation=30, ha="right", fontsize=7)
+        ax.set_xlabel("evaluated task j")
+        ax.set_title(title, fontsize=10)
+    axes[0].set_yticks(range(K), labels, fontsize=7)
+    axes[0].set_ylabel("after learning task i")
+    fig.colorbar(image, ax=list(axes), shrink=0.8)
+    return _save(fig, path)
+
+
+def _plot_curves(C: np.ndarray, epochs: list[int], kept: list[int], labels: list[str], path: Path) -> Path:
+    """Success and ESR of each task while learning it, against the epoch; a star marks the kept checkpoint."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 3.6), layout="constrained")
+    for ax, curves, title in zip(fig.subplots(1, 2), C, ("success C (star: kept checkpoint)", "elegant success C_elegant")):
+        for k, label in enumerate(labels):
+            line, = ax.plot(epochs, curves[k], marker="o", ms=3, lw=1.2, label=label)
+            ax.plot([kept[k]], [curves[k][epochs.index(kept[k])]], marker="*", ms=10, color=line.get_color())
+        ax.set_ylim(-0.05, 1.05)
+        ax.set_xlabel("epoch of training on the task")
+        ax.set_ylabel("rate")
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=7, loc="best")
+    return _save(fig, path)
+
+
+def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarray) -> None:
+    """report.md with the metrics, S and C as tables (success / ESR), and the two plots."""
+    cfg = result["config"]
+    labels = [f"{k}: {key}" for k, key in enumerate(cfg["task_keys"])]
+    _plot_matrices(S, labels, out / "success_matrix.png")
+    _plot_curves(C, cfg["eval_epochs"], result["kept_epochs"], labels, out / "learning_curves.png")
+
+    def pair(s: float, e: float) -> str:
+        return "—" if np.isnan(s) else f"{_pct(s)} / {_pct(e)}"
+
+    metrics = [[name, *(f"{result[m][key]:.3f}" for key in ("fwt", "nbt", "auc"))]
+               for name, m in (("success", "metrics"), ("elegant success (ESR)", "metrics_elegant"))]
+    lines = [
+        f"# Lifelong learning: {cfg['suite']}, {cfg['algorithm']} fine-tuning",
+        "",
+        f"- tasks in learning order: {', '.join(labels)}",
+        f"- {cfg['epochs']} epochs per task, evaluated at epochs {', '.join(map(str, cfg['eval_epochs']))}; "
+        f"{cfg['episodes']} episodes per evaluation; seed {cfg['seed']}; max steps {cfg['max_steps'] or 'suite default'}",
+        f"- demos: {', '.join(f['path'] for f in cfg['data'])}; each task's normalisation is fitted on its own demos",
+        f"- kept checkpoint per task (first best success, as LIBERO): epoch {', '.join(map(str, result['kept_epochs']))}",
+        "",
+        "## Metrics",
+        "",
+        _table(["from", "FWT", "NBT", "AUC"], metrics),
+        "",
+        "FWT: mean of the learning curves C (clamped at their best). NBT: mean drop of a task's success after "
+        "later tasks were learned (lower is better). AUC: per task, learning curve and later successes together.",
+        "",
+        "## Success matrix S: success / ESR on task j (column) after learning task i (row)",
+        "",
+        _table(["after \\ on", *labels], [[labels[i], *(pair(S[0, i, j], S[1, i, j]) for j in range(len(labels)))] for i in range(len(labels))]),
+        "",
+        "![success matrix](success_matrix.png)",
+        "",
+        "## Learning curves C: success / ESR on the task being learned, per evaluation epoch",
+        "",
+        _table(["task", *(f"epoch {e}" for e in cfg["eval_epochs"])],
+               [[labels[k], *(pair(C[0, k, i], C[1, k, i]) for i in range(C.shape[2]))] for k in range(len(labels))]),
+        "",
+        "![learning curves](learning_curves.png)",
+    ]
+    atomic_write(out / "report.md", "\n".join(lines) + "\n")

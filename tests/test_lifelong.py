@@ -1,0 +1,128 @@
+"""`elegant lifelong` on the real simulator: LIBERO's protocol with sequential fine-tuning, at tiny sizes.
+
+Two libero_object tasks with one scripted demo each, 2 epochs per task evaluated every epoch with one
+5-step episode: the numbers are all failures, but the files, the matrix shapes, the metrics, the chain
+of networks from one stage to the next, resume and the refusals are the real ones.
+"""
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from annotations.collect import collect_demos
+from base_suites.errors import UserInputError
+from elegant.cli import main
+from elegant.lifelong import run_lifelong
+from elegant.metrics import lifelong_metrics
+from elegant.policies.bc_train import snapshot_dir
+
+pytestmark = pytest.mark.sim
+SUITE, TASKS = "libero_object", [0, 1]
+SETTINGS = {"epochs": 2, "eval_every": 1, "episodes": 1, "seed": 0, "max_steps": 5, "progress": False}
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory) -> str:
+    path = str(tmp_path_factory.mktemp("demos") / "demos.hdf5")
+    collect_demos(SUITE, TASKS, 1, path, quality="clean", seed=0, progress=False)
+    return path
+
+
+@pytest.fixture(scope="module")
+def run(demos, tmp_path_factory):
+    out = tmp_path_factory.mktemp("lifelong") / "run"
+    return out, run_lifelong(SUITE, TASKS, [demos], out, **SETTINGS)
+
+
+def weights(policy_dir) -> dict:
+    return torch.load(os.path.join(policy_dir, "model.pt"), weights_only=True)
+
+
+def same(a: dict, b: dict) -> bool:
+    return all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_matrices_metrics_and_files(run):
+    out, result = run
+    assert json.loads((out / "lifelong.json").read_text()) == json.loads(json.dumps(result))
+    S, C = np.array(result["S"], dtype=float), np.array(result["C"], dtype=float)
+    S_el, C_el = np.array(result["S_elegant"], dtype=float), np.array(result["C_elegant"], dtype=float)
+    assert S.shape == S_el.shape == (2, 2) and C.shape == C_el.shape == (2, 3)
+    assert result["S"][0][1] is None and not np.isnan(S[np.tril_indices(2)]).any()
+    assert result["metrics"] == lifelong_metrics(S, C) and result["metrics_elegant"] == lifelong_metrics(S_el, C_el)
+    assert result["config"]["eval_epochs"] == [0, 1, 2]
+    for k in range(2):  # the kept checkpoint is the first best of the learning curve, and S[k, k] is its success
+        best = int(np.argmax(C[k]))
+        assert result["kept_epochs"][k] == best and S[k, k] == C[k, best] and S_el[k, k] == C_el[k, best]
+        assert result["kept_policies"][k] == snapshot_dir(str(out / "stages" / f"task_{k}"), best)
+        for epoch in range(3):
+            assert (out / "evals" / f"task_{k}" / f"epoch_{epoch}" / "summary.json").exists()
+    after = json.loads((out / "evals" / "after_task_1" / "summary.json").read_text())
+    assert after["config"]["tasks"] == [0] and after["config"]["mode"] == "base" and after["config"]["critic"] is None
+    assert S[1, 0] == after["per_task"]["libero_object/0"]["success_rate"]
+    for name in ("report.md", "success_matrix.png", "learning_curves.png"):
+        assert (out / name).stat().st_size > 0
+    assert "FWT" in (out / "report.md").read_text()
+
+
+def test_one_input_encoder_over_all_tasks_and_stage_two_starts_from_stage_one(run):
+    out, result = run
+    stage0, stage1 = out / "stages" / "task_0", out / "stages" / "task_1"
+    configs = [json.loads((stage / "config.json").read_text()) for stage in (stage0, stage1)]
+    for config in configs:  # both stages: the one-hot covers both tasks
+        assert sorted(config["features"]["encoder"]["layouts"]) == ["libero_object/0", "libero_object/1"]
+    assert configs[0]["training"]["tasks"] == ["libero_object/0"] and configs[0]["training"]["init_from"] is None
+    kept0 = result["kept_policies"][0]
+    assert configs[1]["training"]["tasks"] == ["libero_object/1"]
+    assert configs[1]["training"]["init_from"]["path"] == os.path.abspath(kept0)
+    assert configs[1]["features"] == configs[0]["features"]
+    assert same(weights(snapshot_dir(str(stage1), 0)), weights(kept0))  # stage 2 starts from the kept network
+    assert not same(weights(stage1), weights(kept0))  # and trains it
+
+
+def test_resume_of_a_finished_run_reruns_nothing(run, demos):
+    out, result = run
+    files = [p for p in out.rglob("*") if p.name in ("checkpoint.pt", "model.pt", "summary.json", "episodes.jsonl")]
+    before = {p: p.stat().st_mtime_ns for p in files}
+    assert run_lifelong(SUITE, TASKS, [demos], out, resume=True, **SETTINGS) == result
+    assert {p: p.stat().st_mtime_ns for p in files} == before
+
+
+def test_resume_after_a_kill_in_stage_two_gives_the_same_numbers(run, demos, tmp_path):
+    """Also determinism: retraining stage two and re-running evaluations reproduce every number."""
+    out, result = run
+    cut = tmp_path / "cut"
+    shutil.copytree(out, cut)
+    for lost in ("stages/task_1", "evals/task_1", "evals/after_task_1", "lifelong.json"):
+        shutil.rmtree(cut / lost) if (cut / lost).is_dir() else (cut / lost).unlink()
+    shutil.rmtree(cut / "evals" / "task_0" / "epoch_2")  # an evaluation of stage one is lost too
+    again = run_lifelong(SUITE, TASKS, [demos], cut, resume=True, **SETTINGS)
+    for key in ("S", "C", "S_elegant", "C_elegant", "kept_epochs", "metrics", "metrics_elegant"):
+        assert again[key] == result[key], key
+
+
+def test_refusals(run, demos, tmp_path):
+    out, _ = run
+    with pytest.raises(UserInputError, match=r"demos\.hdf5: no demos of task libero_object/2"):
+        run_lifelong(SUITE, [0, 2], [demos], tmp_path / "a", **SETTINGS)
+    with pytest.raises(UserInputError, match="eval_every must be a positive integer, got 0"):
+        run_lifelong(SUITE, TASKS, [demos], tmp_path / "b", **{**SETTINGS, "eval_every": 0})
+    with pytest.raises(UserInputError, match="multiple of eval_every"):
+        run_lifelong(SUITE, TASKS, [demos], tmp_path / "c", **{**SETTINGS, "eval_every": 3})
+    with pytest.raises(UserInputError, match="listed more than once"):
+        run_lifelong(SUITE, [1, 1], [demos], tmp_path / "d", **SETTINGS)
+    with pytest.raises(UserInputError, match="not empty"):
+        run_lifelong(SUITE, TASKS, [demos], out, **SETTINGS)
+    with pytest.raises(UserInputError, match="field 'episodes'"):
+        run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "episodes": 2})
+    assert not any((tmp_path / d).exists() for d in "abcd")  # refused before any work
+
+
+def test_cli_refuses_in_one_line(demos, tmp_path, capsys):
+    args = ["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "x"), "--epochs", "2", "--eval-every", "0"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "eval_every must be a positive integer" in err
