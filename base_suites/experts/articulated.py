@@ -81,7 +81,16 @@ def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
             break
     yield from ctx.hold(OPEN, 8, rot)
     yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
+    yield from _point_down(ctx)
     return view.predicate(("open", target))
+
+
+def _point_down(ctx: SkillContext) -> Actions:
+    """Rise and turn the horizontal hand back to pointing down, in place: done on the way to the next
+    pick, the quarter turn drags the hand off course and into the cabinet."""
+    view = ctx.view
+    yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.06]), view.eef_rotation(), OPEN, tol=0.02, max_steps=30)
+    yield from ctx.goto(view.eef_position(), nearest_grasp_rotation(0.0, view.eef_rotation(), view.arm_joints()[6]), OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
 
 
 def _push_drawer(ctx: SkillContext, target: str) -> Actions:
@@ -97,6 +106,7 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
         if view.predicate(("close", target)):
             break
     yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
+    yield from _point_down(ctx)
     return view.predicate(("close", target))
 
 
@@ -141,7 +151,7 @@ def turn(ctx: SkillContext, target: str, on: bool) -> Actions:
     # Fingers close across the bar's thin horizontal side.
     yaw = 0.0 if extent[1] <= extent[0] else np.pi / 2
     grip = np.array([centre[0], centre[1], top[:, 2].max() - 0.015])
-    rot = nearest_grasp_rotation(yaw, view.eef_rotation())
+    rot = nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6])
     yield from ctx.goto(np.array([*grip[:2], grip[2] + 0.10]), rot, OPEN, tol=0.015, max_steps=150)
     yield from ctx.goto(grip, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
     yield from ctx.hold(CLOSE, 10, rot)

@@ -48,12 +48,19 @@ def grasp_rotation(yaw: float, tilt_axis: np.ndarray | None = None, tilt: float 
     return r
 
 
-def nearest_grasp_rotation(yaw: float, current: np.ndarray) -> np.ndarray:
+WRIST_LIMIT = 2.6  # rad: keep the Panda's last joint (limit 2.90) clear of its stop
+
+
+def nearest_grasp_rotation(yaw: float, current: np.ndarray, wrist: float) -> np.ndarray:
     """`grasp_rotation(yaw)` or the same grasp with the hand turned half a turn (a parallel gripper is
-    symmetric), whichever is the smaller rotation from `current`: after a knob turn the wrist is already
-    twisted, and turning it further runs the last joint into its limit, where OSC stops tracking."""
-    options = [grasp_rotation(yaw), grasp_rotation(yaw + np.pi)]
-    return min(options, key=lambda r: float(np.linalg.norm(rotation_error(r, current))))
+    symmetric): the smaller turn from `current` that keeps the last joint (now at `wrist`) off its stop.
+    With the hand pointing down a turn of d about world z moves that joint by about -d; a joint at its
+    stop makes OSC drag the hand sideways instead of turning it (after knob turns, drawer pulls)."""
+    options = []
+    for candidate in (grasp_rotation(yaw), grasp_rotation(yaw + np.pi)):
+        turn = float(rotation_error(candidate, current)[2])
+        options.append((abs(wrist - turn) > WRIST_LIMIT, abs(turn), candidate))
+    return min(options, key=lambda o: o[:2])[2]
 
 
 def finger_axis(yaw: float) -> np.ndarray:

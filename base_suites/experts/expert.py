@@ -69,6 +69,7 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
     a step of its own, keyed by the predicate it makes true."""
     steps: list[tuple[int, tuple[str, ...], Skill]] = []
     opened_for = set()
+    targets = [p[2] for p in goal if p[0] in ("on", "in")]
     for pred in goal:
         kind, *args = pred
         if kind in ("on", "in"):
@@ -77,7 +78,8 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
             if kind == "in" and container is not None and not view.predicate(("open", target)) and target not in opened_for:
                 steps.append((1, ("open", target), lambda c, t=target: articulated.open_(c, t)))
                 opened_for.add(target)
-            steps.append((2, tuple(pred), lambda c, o=obj, t=target: _pick_place(c, o, t)))
+            shared = targets.count(target) > 1
+            steps.append((2, tuple(pred), lambda c, o=obj, t=target, s=shared: _pick_place(c, o, t, s)))
         elif kind == "open":
             steps.append((1, tuple(pred), lambda c, t=args[0]: articulated.open_(c, t)))
         elif kind == "close":
@@ -90,13 +92,13 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
     return [(pred, fn) for _, pred, fn in steps]
 
 
-def _pick_place(ctx: SkillContext, obj: str, target: str) -> skills.Actions:
+def _pick_place(ctx: SkillContext, obj: str, target: str, shared: bool = False) -> skills.Actions:
     if not skills.can_grasp(ctx.view, obj):
         return (yield from skills.push(ctx, obj, target))
     ok = yield from skills.pick(ctx, obj)
     if not ok:
         return False
-    return (yield from skills.place(ctx, obj, target))
+    return (yield from skills.place(ctx, obj, target, shared=shared))
 
 
 class ScriptedExpert:

@@ -59,7 +59,7 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
     view = ctx.view
     for attempt in range(attempts):
         grasp = choose_grasp(view, obj)
-        rot = nearest_grasp_rotation(grasp.yaw, view.eef_rotation())
+        rot = nearest_grasp_rotation(grasp.yaw, view.eef_rotation(), view.arm_joints()[6])
         hover = max(view.eef_position()[2], grasp.position[2] + 0.12)
         target = grasp.position.copy()
         if "regrasp" in ctx.knobs and attempt == 0:
@@ -81,38 +81,42 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
     return False
 
 
-def _target_xy(view: SimView, target: str | np.ndarray, held: str | None = None) -> np.ndarray:
+def _target_xy(view: SimView, target: str | np.ndarray, held: str | None = None, shared: bool = False) -> np.ndarray:
     if not isinstance(target, str):
         return np.asarray(target, dtype=float)[:2]
     if target in view.regions:
-        return _free_spot(view, target, held) if held is not None else view.region(target).position[:2]
+        return _free_spot(view, target, held, shared) if held is not None else view.region(target).position[:2]
     return view.position(target)[:2]
 
 
-def _free_spot(view: SimView, region_name: str, held: str, gap: float = 0.015) -> np.ndarray:
+SHARED_OFFSET = 0.5  # first of several objects for one region: this far from its centre (x half size)
+INNER = 0.7  # spots are searched this far out (x half size): the region's rim is the container's wall
+
+
+def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: float = 0.015) -> np.ndarray:
     """Where in a region the held object's footprint stays clear of what already stands there (both moka
-    pots go on one burner): the region's centre when it is free, else the clear spot nearest to it, else
-    the spot with the most room."""
+    pots go on one burner; the container the region belongs to does not count): the clear spot nearest
+    the region's centre, else the spot with the most room, within the inner part of the region. A region
+    that several goal objects share gets its first object off-centre, leaving room for the next."""
     region = view.region(region_name)
     centre = region.position[:2]
     if region.half_size is None:
         return centre
+    axes, half = region.rotation[:2, :2], np.asarray(region.half_size[:2], dtype=float)
+    others = [fill_boxes(view.geom_points(o).reshape(-1, 8, 3)) for o in view.objects if o not in (held, region.parent)]
+    others = np.concatenate([p[p[:, 2] > region.position[2] + 0.01][:, :2] for p in others] or [np.zeros((0, 2))])
+    inside = np.all(np.abs((others - centre) @ axes) <= half, axis=1) if len(others) else np.zeros(0, dtype=bool)
+    if not inside.any():
+        if not shared:
+            return centre
+        long_axis = int(np.argmax(half))
+        return centre + axes[:, long_axis] * SHARED_OFFSET * half[long_axis]
     footprint = view.geom_points(held)[:, :2] - view.position(held)[:2]
-    floor = region.position[2] + 0.01
-    others = [fill_boxes(view.geom_points(o).reshape(-1, 8, 3)) for o in view.objects if o != held]
-    others = np.concatenate([p[p[:, 2] > floor][:, :2] for p in others] or [np.zeros((0, 2))])
-    if len(others) == 0:
-        return centre
-    axes = region.rotation[:2, :2]
+    grid = np.linspace(-INNER, INNER, 9)
+    spots = sorted((centre + axes @ (np.array([u, v]) * half) for u in grid for v in grid), key=lambda p: float(np.linalg.norm(p - centre)))
     best, best_room = centre, -np.inf
-    grid = np.linspace(-1, 1, 9)
-    spots = sorted(
-        (centre + axes @ (np.array([u, v]) * region.half_size[:2]) for u in grid for v in grid),
-        key=lambda p: float(np.linalg.norm(p - centre)),
-    )
     for spot in spots:
-        placed = footprint + spot
-        room = float(np.min(np.linalg.norm(others[:, None, :] - placed[None, :, :], axis=-1)))
+        room = float(np.min(np.linalg.norm(others[:, None, :] - (footprint + spot)[None, :, :], axis=-1)))
         if room > gap:
             return spot
         if room > best_room:
@@ -127,13 +131,14 @@ def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
     return grasp_rotation(yaw, axis, angle)
 
 
-def place(ctx: SkillContext, obj: str, target: str | np.ndarray) -> Actions:
-    """Carry the held `obj` above `target` (a region, an entity or an xy point) and set it down on contact."""
+def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = False) -> Actions:
+    """Carry the held `obj` above `target` (a region, an entity or an xy point) and set it down on contact.
+    `shared`: other goal objects go to the same region (see `_free_spot`)."""
     view = ctx.view
     rot = view.eef_rotation()
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]) - np.pi / 2)
     upright = grasp_rotation(yaw)
-    goal_xy = _target_xy(view, target, held=obj)
+    goal_xy = _target_xy(view, target, held=obj, shared=shared)
     if "misplace" in ctx.knobs and isinstance(target, str):
         angle = ctx.rng.uniform(0, 2 * np.pi)
         goal_xy = goal_xy + ctx.rng.uniform(0.05, 0.08) * np.array([np.cos(angle), np.sin(angle)])
