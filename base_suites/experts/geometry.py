@@ -141,22 +141,23 @@ def _part_pinches(parts: np.ndarray) -> list[Grasp]:
     return grasps
 
 
-def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
+def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp | None:
     """The clearest feasible top-down grasp of an object (pinch across a narrow side, a slender part,
-    or the rim of an open object)."""
+    or the rim of an open object); None if none fits (flat plates are pushed instead)."""
     points = view.geom_points(entity)
     parts = points.reshape(-1, 8, 3)
     shape = Shape(points.min(axis=0), points.max(axis=0))
     obstacles = _obstacle_points(view, entity)
     centre = shape.centre
+    pinch_z = _pinch_height(shape)
     pinches, rims = [], []
+    open_top = not _covers_centre(parts, shape)
     for yaw in YAWS:
         axis = finger_axis(yaw)
         width = _extent(points, axis)
         if width <= MAX_WIDTH:
-            z = max(shape.bottom + 0.012, shape.top - min(0.035, shape.height * 0.5))
-            pinches.append(Grasp(np.array([centre[0], centre[1], z]), float(yaw), 0.0, rim=False))
-        elif shape.height > 0.03 and not _covers_centre(parts, shape):
+            pinches.append(Grasp(np.array([centre[0], centre[1], pinch_z]), float(yaw), 0.0, rim=False))
+        elif shape.height > 0.03:
             # Rim grasp of a wide round object: the fingers straddle the wall along the closing axis.
             radius = width / 2
             z = shape.top - 0.018
@@ -178,10 +179,23 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp:
 
     scored = [score(c) for c in pinches]
     if not scored or max(v for v, _ in scored) <= 0.05:  # no pinch clear of the neighbours
-        scored += [score(c) for c in rims] if rims else [score(c) for c in _part_pinches(parts)]
-    if not scored:
-        raise RuntimeError(f"no top-down grasp fits {entity}")
-    return max(scored, key=lambda vs: vs[0])[1]
+        scored += [score(c) for c in rims] if open_top else [score(c) for c in _part_pinches(parts)]
+    if not scored:  # nothing fits (a can lying on its side): rims are the best bet, if any
+        scored = [score(c) for c in rims]
+    return max(scored, key=lambda vs: vs[0])[1] if scored else None
+
+
+def narrowest_pinch(view: SimView, entity: str) -> Grasp:
+    """The last resort when `choose_grasp` finds nothing: close across the object's narrowest side."""
+    points = view.geom_points(entity)
+    shape = Shape(points.min(axis=0), points.max(axis=0))
+    yaw = min(YAWS, key=lambda y: _extent(points, finger_axis(y)))
+    return Grasp(np.array([*shape.centre[:2], _pinch_height(shape)]), float(yaw), 0.0, rim=False)
+
+
+def _pinch_height(shape: Shape) -> float:
+    """Fingertips 3.5 cm below the top (half way down short objects), never at the table."""
+    return max(shape.bottom + 0.012, shape.top - min(0.035, shape.height * 0.5))
 
 
 def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, clearance: float = 0.06) -> float:

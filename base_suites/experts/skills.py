@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rotation_error
-from base_suites.experts.geometry import carry_height, choose_grasp, fill_boxes, shape_of
+from base_suites.experts.geometry import carry_height, choose_grasp, fill_boxes, narrowest_pinch, shape_of
 from base_suites.sim_view import SimView
 
 Actions = Generator[np.ndarray, None, bool]
@@ -58,7 +58,7 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
     """Top-down grasp of `obj` and lift to carrying height; retries with a fresh grasp choice."""
     view = ctx.view
     for attempt in range(attempts):
-        grasp = choose_grasp(view, obj)
+        grasp = choose_grasp(view, obj) or narrowest_pinch(view, obj)
         rot = nearest_grasp_rotation(grasp.yaw, view.eef_rotation(), view.arm_joints()[6])
         hover = max(view.eef_position()[2], grasp.position[2] + 0.12)
         target = grasp.position.copy()
@@ -229,8 +229,4 @@ def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015) -> 
 
 def can_grasp(view: SimView, obj: str) -> bool:
     """Whether a top-down grasp exists (flat wide objects such as plates must be pushed instead)."""
-    try:
-        choose_grasp(view, obj)
-        return True
-    except RuntimeError:
-        return False
+    return choose_grasp(view, obj) is not None
