@@ -27,8 +27,9 @@ _LAZY = {
     "run_lifelong": "elegant.lifelong",
     "compare_runs": "elegant.report",
     "write_run_report": "elegant.report",
-    "quickstart": "elegant.quickstart",
-    "QuickstartConfig": "elegant.quickstart",
+    "quickstart": "elegant.pipeline",
+    "run_chain": "elegant.pipeline",
+    "ChainConfig": "elegant.pipeline",
 }
 
 __all__ = sorted(_LAZY)

@@ -244,26 +244,24 @@ def _report(args: argparse.Namespace) -> None:
 
 
 def _quickstart_args(p: argparse.ArgumentParser) -> None:
-    from elegant.quickstart import QuickstartConfig
+    from elegant.pipeline import QUICKSTART
 
-    defaults = QuickstartConfig()
     p.add_argument("--out", default="runs/quickstart")
-    p.add_argument("--suite", default=defaults.suite)
-    p.add_argument("--task", type=int, default=defaults.task)
-    p.add_argument("--demos", type=int, default=defaults.demos)
-    p.add_argument("--critic-steps", type=int, default=defaults.critic_steps)
-    p.add_argument("--policy-epochs", type=int, default=defaults.policy_epochs)
-    p.add_argument("--episodes", type=int, default=defaults.episodes)
-    p.add_argument("--seed", type=int, default=defaults.seed)
+    p.add_argument("--suite", default=QUICKSTART.suites[0])
+    p.add_argument("--task", type=int, default=QUICKSTART.tasks[0])
+    p.add_argument("--demos", type=int, default=QUICKSTART.demos)
+    p.add_argument("--critic-steps", type=int, default=QUICKSTART.critic_steps)
+    p.add_argument("--policy-epochs", type=int, default=QUICKSTART.policy_epochs)
+    p.add_argument("--episodes", type=int, default=QUICKSTART.episodes)
+    p.add_argument("--seed", type=int, default=QUICKSTART.seed)
 
 
 @command("quickstart", "the whole chain on one task at small sizes: demos -> annotate -> critic -> policy -> eval -> report")(_quickstart_args)
 def _quickstart(args: argparse.Namespace) -> dict:
-    from elegant.quickstart import QuickstartConfig, quickstart
+    from elegant.pipeline import quickstart
 
-    config = QuickstartConfig(suite=args.suite, task=args.task, demos=args.demos, critic_steps=args.critic_steps,
-                              policy_epochs=args.policy_epochs, episodes=args.episodes, seed=args.seed)
-    return quickstart(args.out, config)
+    return quickstart(args.out, suites=(args.suite,), tasks=(args.task,), demos=args.demos, critic_steps=args.critic_steps,
+                      policy_epochs=args.policy_epochs, episodes=args.episodes, seed=args.seed)
 
 
 def build_parser() -> argparse.ArgumentParser:

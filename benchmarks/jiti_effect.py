@@ -1,0 +1,78 @@
+"""JITI's effect and the base policy's quality: the whole chain at benchmark sizes, base vs always vs jiti.
+
+Targets: the BC base policy (trained on mixed-quality demos) succeeds >= 70% per suite with ESR clearly
+below success (issue 6); JITI's ESR >= 15 points above base, success at most 2 points below, with at most
+40% of `always` mode's interventions (issue 7). Every episode of a task starts from the same init state
+in every mode. The chain directory resumes (rerun the same command after an interruption).
+
+    python benchmarks/jiti_effect.py --out runs/effect [--suites libero_object,libero_goal] [--demos 50]
+        [--episodes 50] [--critic-steps 20000] [--policy-epochs 50] [--tasks 0,1] [--threshold 2 --threshold-mode std]
+
+Prints the table per suite, then one JSON object on its last line.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+from elegant.pipeline import ChainConfig, run_chain
+
+TARGETS = {"base_success": 0.70, "esr_gain": 0.15, "max_success_drop": 0.02, "max_intervention_ratio": 0.40}
+
+
+def verdicts(result: dict) -> dict:
+    """Each target per suite, from the chain's per-suite numbers."""
+    out = {}
+    for suite, modes in result["per_suite"].items():
+        base, jiti, always = modes["base"], modes["jiti"], modes["always"]
+        ratio = jiti["interventions_per_episode"] / always["interventions_per_episode"] if always["interventions_per_episode"] else None
+        out[suite] = {
+            "base_success": base["success_rate"],
+            "base_esr": base["esr"],
+            "esr_gain": jiti["esr"] - base["esr"],
+            "success_drop": base["success_rate"] - jiti["success_rate"],
+            "intervention_ratio": ratio,
+            "meets": {
+                "base_success": base["success_rate"] >= TARGETS["base_success"],
+                "esr_gain": jiti["esr"] - base["esr"] >= TARGETS["esr_gain"],
+                "success_drop": base["success_rate"] - jiti["success_rate"] <= TARGETS["max_success_drop"],
+                "intervention_ratio": ratio is not None and ratio <= TARGETS["max_intervention_ratio"],
+            },
+        }
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True, help="chain directory (resumable)")
+    parser.add_argument("--suites", default="libero_object,libero_goal")
+    parser.add_argument("--tasks", help="task indices for every suite (default: all)")
+    parser.add_argument("--demos", type=int, default=50, help="mixed-quality demos per task")
+    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task and mode")
+    parser.add_argument("--critic-steps", type=int, default=20000)
+    parser.add_argument("--critic-gamma", type=float)
+    parser.add_argument("--policy-epochs", type=int, default=50)
+    parser.add_argument("--trust-radius", type=float, default=0.3)
+    parser.add_argument("--threshold", type=float)
+    parser.add_argument("--threshold-mode", choices=("absolute", "std"))
+    parser.add_argument("--max-steps", type=int)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    config = ChainConfig(
+        suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
+        demos=args.demos, critic_steps=args.critic_steps, critic_gamma=args.critic_gamma, policy_epochs=args.policy_epochs,
+        episodes=args.episodes, modes=("base", "always", "jiti"), seed=args.seed, trust_radius=args.trust_radius,
+        threshold=args.threshold, threshold_mode=args.threshold_mode, max_steps=args.max_steps,
+    )
+    result = run_chain(args.out, config)
+    table = verdicts(result)
+    print(f"{'suite':16s} {'mode':7s} {'success':>8s} {'ESR':>6s} {'interv/ep':>10s}")
+    for suite, modes in result["per_suite"].items():
+        for mode, row in modes.items():
+            print(f"{suite:16s} {mode:7s} {row['success_rate']:8.1%} {row['esr']:6.1%} {row['interventions_per_episode']:10.1f}")
+    print(json.dumps({"benchmark": "jiti_effect", "config": vars(args), "per_suite": result["per_suite"], "verdicts": table,
+                      "targets": TARGETS, "report": result["report"]}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,46 @@
+"""The chain behind `elegant quickstart` and the effect benchmark, at tiny sizes on the real simulator."""
+import json
+import os
+
+import pytest
+
+from base_suites import UserInputError
+from elegant.pipeline import ChainConfig, run_chain
+
+pytestmark = pytest.mark.sim
+
+TINY = ChainConfig(demos=2, critic_steps=20, policy_epochs=1, episodes=1, max_steps=15)
+
+
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    out = str(tmp_path_factory.mktemp("chain"))
+    return out, run_chain(out, TINY, progress=False)
+
+
+def test_chain_runs_every_step_and_reports_the_eval_numbers(chain):
+    out, result = chain
+    for name in ("demos_libero_object.hdf5", "annotated_libero_object.hdf5", "critic/critic.json", "policy/config.json"):
+        assert os.path.exists(os.path.join(out, name)), name
+    assert os.path.exists(result["report"])
+    for mode in ("base", "jiti"):
+        summary = json.load(open(os.path.join(result["runs"][mode]["libero_object"], "summary.json")))
+        assert summary["config"]["max_steps"] == 15 and summary["episodes"] == 1
+        for key in ("success_rate", "esr", "interventions_per_episode"):
+            assert result[mode][key] == pytest.approx(summary[key])
+            assert result["per_suite"]["libero_object"][mode][key] == pytest.approx(summary[key])
+    jiti = json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))
+    assert jiti["jiti"]["trust_radius"] == TINY.trust_radius
+
+
+def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
+    out, result = chain
+    critic = os.path.join(out, "critic", "critic.json")
+    before = os.path.getmtime(critic)
+    again = run_chain(out, TINY, progress=False)
+    assert os.path.getmtime(critic) == before
+    assert {m: again[m] for m in ("base", "jiti")} == {m: result[m] for m in ("base", "jiti")}
+    with pytest.raises(UserInputError, match="other settings \\(demos\\)"):
+        run_chain(out, ChainConfig(demos=3, critic_steps=20, policy_epochs=1, episodes=1, max_steps=15), progress=False)
+    with pytest.raises(UserInputError, match="chain modes"):
+        run_chain(out, ChainConfig(modes=("sometimes",)), progress=False)
