@@ -16,6 +16,7 @@ from annotations.format import task_key
 from base_suites import get_task, make_env
 from base_suites.env import LiberoEnv
 from base_suites.errors import UserInputError
+from base_suites.seeds import derive_seed
 
 
 DEMO_HORIZON_FACTOR = 2
@@ -72,7 +73,7 @@ def collect_demos(
             if writer is None:
                 writer = DemoWriter(out, dataset_attrs(env, suite, [s.index for s in specs]), resume=resume)
             done_before = writer.count
-            expert = ScriptedExpert(env, quality=quality, seed=int(np.random.SeedSequence([seed, spec.index]).generate_state(1)[0]))
+            expert = ScriptedExpert(env, quality=quality, seed=derive_seed(seed, spec.index))
             for i in range(episodes):
                 global_index = task_pos * episodes + i
                 if global_index < done_before:
@@ -80,7 +81,7 @@ def collect_demos(
                     continue
                 init = i % spec.n_init_states
                 # A reset seed per (seed, task, episode): a resumed collection rebuilds the same scenes.
-                reset_seed = int(np.random.SeedSequence([seed, spec.index, i]).generate_state(1)[0])
+                reset_seed = derive_seed(seed, spec.index, i)
                 obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
                 layout = env.fixture_layout()
                 expert.reset(env.metadata, episode=i)

@@ -39,7 +39,9 @@ def replay_verdict(env: LiberoEnv, monitor: ITCMonitor, demo: Demo) -> EpisodeVe
     """ITC labels of one demo from its stored states (see module docstring)."""
     init = demo.attrs.get("init_state_index")
     valid_init = isinstance(init, (int, np.integer)) and 0 <= int(init) < env.task.n_init_states
-    env.reset(options={"init_state": int(init) if valid_init else 0})
+    # The recorded reset seed rebuilds the recorded scene (fixtures, perturbation placements) where the
+    # file predates `fixture_layout`; without one, seed 0 at least makes the replay the same every time.
+    env.reset(seed=int(demo.attrs.get("reset_seed", 0)), options={"init_state": int(init) if valid_init else 0})
     if demo.attrs.get("fixture_layout"):
         try:
             env.set_fixture_layout(demo.attrs["fixture_layout"])

@@ -77,7 +77,10 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
                     layout = env.fixture_layout_from_xml(model_xml) if model_xml else None
                 except UserInputError as e:
                     raise UserInputError(f"{path}: data/{name} attribute 'model_file': {e}") from None
-                demo = replay_states(env, states, actions, layout)
+                try:
+                    demo = replay_states(env, states, actions, layout)
+                except UserInputError as e:
+                    raise UserInputError(f"{path}: data/{name}: {e}") from None
                 demo.attrs.update(
                     suite=spec.suite, task_index=spec.index, task_name=spec.name, language_instruction=spec.language,
                     init_state_index=0, seed=0, knobs={}, expert_version="human:libero", source_demo=name,
@@ -96,7 +99,7 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
 def replay_states(env, states: np.ndarray, actions: np.ndarray, layout: dict | None = None) -> Demo:
     """Observations of stored states; the state after the last action comes from stepping it. `layout`
     puts the fixtures where the recording had them (else they stand where a reset puts them)."""
-    env.reset(options={"init_state": 0})
+    env.reset(seed=0, options={"init_state": 0})
     if layout:
         env.set_fixture_layout(layout)
     obs = np.array([env.set_sim_state(s)["state"] for s in states])

@@ -259,33 +259,49 @@ class LiberoEnv(gym.Env):
         }
 
     def set_fixture_layout(self, layout: Mapping[str, Sequence[float]]) -> None:
-        """Put the fixtures where `fixture_layout()` recorded them (call after `reset`, before replaying)."""
+        """Put the fixtures where `fixture_layout()` recorded them (call after `reset`, before replaying).
+        The whole layout is checked before any fixture moves."""
         bodies = self._fixture_bodies()
-        model = self.domain.sim.model._model
+        where = f"task {self.task.suite}/{self.task.index}"
+        if not isinstance(layout, Mapping):
+            raise UserInputError(f"fixture layout must map fixture names to [x, y, z, qw, qx, qy, qz], got {type(layout).__name__}")
+        poses = {}
         for name, pose in layout.items():
             if name not in bodies:
-                raise UserInputError(f"fixture layout names {name!r}, which task {self.task.suite}/{self.task.index} does not have")
-            if len(pose) != 7:
-                raise UserInputError(f"fixture layout of {name!r} has {len(pose)} values; expected 7 (x, y, z, qw, qx, qy, qz)")
+                raise UserInputError(f"fixture layout names {name!r}, which {where} does not have")
+            try:
+                poses[name] = np.asarray(pose, dtype=float).reshape(7)
+            except (TypeError, ValueError):
+                raise UserInputError(f"fixture layout of {name!r} is {pose!r}; expected 7 numbers (x, y, z, qw, qx, qy, qz)") from None
+        model = self.domain.sim.model._model
+        for name, pose in poses.items():
             model.body_pos[bodies[name]] = pose[:3]
             model.body_quat[bodies[name]] = pose[3:]
         self.domain.sim.forward()
 
     def fixture_layout_from_xml(self, model_xml: str) -> dict[str, list[float]]:
         """The fixture layout recorded in a MuJoCo XML (LIBERO's demo files keep one per demo as
-        `model_file`); fixtures the XML does not place keep their current pose."""
+        `model_file`, written by MuJoCo with `pos` and `quat`); a fixture the XML does not place is refused."""
         import xml.etree.ElementTree as ET
 
         try:
             root = ET.fromstring(model_xml)
         except ET.ParseError as e:
             raise UserInputError(f"model XML does not parse: {e}") from None
-        layout = self.fixture_layout()
-        for name in layout:
-            body = root.find(f".//body[@name='{self.domain.get_object(name).root_body}']")
-            if body is not None and body.get("pos"):
-                quat = body.get("quat") or "1 0 0 0"
-                layout[name] = [float(v) for v in body.get("pos").split()] + [float(v) for v in quat.split()]
+        model = self.domain.sim.model._model
+        layout = {}
+        for name, body_id in self._fixture_bodies().items():
+            body_name = model.body(body_id).name
+            body = root.find(f".//body[@name='{body_name}']")
+            if body is None or not body.get("pos"):
+                raise UserInputError(f"model XML has no body {body_name!r} with a 'pos' (fixture {name})")
+            try:
+                pose = [float(v) for v in body.get("pos").split()] + [float(v) for v in (body.get("quat") or "1 0 0 0").split()]
+            except ValueError:
+                raise UserInputError(f"model XML body {body_name!r}: pos/quat are not numbers") from None
+            if len(pose) != 7:
+                raise UserInputError(f"model XML body {body_name!r}: expected 3 pos and 4 quat values, got {len(pose)}")
+            layout[name] = pose
         return layout
 
     def _fixture_bodies(self) -> dict[str, int]:

@@ -17,15 +17,18 @@ import itertools
 import os
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from annotations import CRITERIA, DemoFile
-from base_suites.env import LiberoEnv, make_env
 from base_suites.errors import UserInputError, unknown_choice
-from base_suites.experts import KNOBS, ScriptedExpert
+from base_suites.seeds import derive_seed
 from critics.artifact import Critic, load
+
+if TYPE_CHECKING:  # the simulator loads only when continuation pairs are rolled out
+    from base_suites.env import LiberoEnv
+    from base_suites.experts import ScriptedExpert
 
 
 def auroc(positive: np.ndarray, negative: np.ndarray) -> float | None:
@@ -178,6 +181,8 @@ def _branch(clean_actions: Sequence[np.ndarray], knob_steps: Iterator[tuple[np.n
 
 
 def _check_pair_inputs(knobs: Sequence[str], inits: Sequence[int], window: int) -> None:
+    from base_suites.experts import KNOBS
+
     for knob in knobs:
         if knob not in KNOBS:
             raise unknown_choice("knob", knob, KNOBS)
@@ -197,6 +202,9 @@ def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits:
     Inits where the knob never acts are counted in `skipped`. `max_steps` caps the episode length (default:
     the task's horizon).
     """
+    from base_suites.env import make_env
+    from base_suites.experts import ScriptedExpert
+
     _check_pair_inputs(knobs, inits, window)
     env = make_env(suite, task, seed=seed, max_steps=max_steps)
     key = f"{env.task.suite}/{env.task.index}"
@@ -205,7 +213,7 @@ def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits:
     pairs, skipped = [], {knob: 0 for knob in knobs}
     try:
         for init in inits:
-            reset_seed = int(np.random.SeedSequence([int(seed), int(init)]).generate_state(1)[0])
+            reset_seed = derive_seed(seed, init)
             clean_steps = list(_episode(env, clean, init, reset_seed))
             clean_actions = [a for _, a in clean_steps]
             for knob, expert in experts.items():
@@ -220,9 +228,16 @@ def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits:
         env.close()
 
 
-def _side_score(critic: Scorer, side: Continuation) -> float:
-    """Mean Q over a side's steps: how good the critic finds that whole stretch of behaviour."""
-    return float(np.mean(critic.q(side.states, side.actions[:, None, :])[:, 0]))
+def _side_score(critic: Scorer, side: Continuation, steps: int) -> float:
+    """Mean Q over a side's first `steps` steps: how good the critic finds that stretch of behaviour."""
+    return float(np.mean(critic.q(side.states[:steps], side.actions[:steps, None, :])[:, 0]))
+
+
+def _gap(critic: Scorer, pair: Pair) -> float:
+    """Clean minus knob score over the same number of steps: a side that ends sooner (the episode
+    succeeded) would otherwise be scored on its near-terminal states only, where Q is high anyway."""
+    steps = min(len(pair.clean.actions), len(pair.knobbed.actions))
+    return _side_score(critic, pair.clean, steps) - _side_score(critic, pair.knobbed, steps)
 
 
 def _preference_summary(gaps: np.ndarray) -> dict[str, Any]:
@@ -238,13 +253,13 @@ def _preference_summary(gaps: np.ndarray) -> dict[str, Any]:
 def pair_preference(critic: Scorer, pairs: Sequence[Pair]) -> dict[str, Any]:
     """How often Q prefers the clean continuation to the knob one from the same state.
 
-    A side's score is the mean Q of its steps; the clean side wins a pair only when it scores strictly
+    A side's score is the mean Q of its steps (both sides over the length of the shorter); the clean side wins a pair only when it scores strictly
     higher (a tie is no preference). A critic that has learnt elegance should prefer what the clean
     expert did; issue 5 asks for >= 80% of pairs. Returns pairs, clean_wins, clean_preferred (the
     fraction; None without pairs), mean_gap (clean minus knob score), and the same per knob.
     `critic` must already be bound to the pairs' task (e.g. `load(dir).bind(pairs.metadata)`).
     """
-    gaps = np.array([_side_score(critic, p.clean) - _side_score(critic, p.knobbed) for p in pairs], dtype=np.float64)
+    gaps = np.array([_gap(critic, p) for p in pairs], dtype=np.float64)
     knob_of = np.array([p.knob for p in pairs], dtype=object)
     per_knob = {knob: _preference_summary(gaps[knob_of == knob]) for knob in dict.fromkeys(p.knob for p in pairs)}
     return {**_preference_summary(gaps), "per_knob": per_knob}

@@ -72,6 +72,8 @@ class TrainConfig:
                 raise UserInputError(f"train-critic: {name} must be a positive integer, got {value!r}")
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
             raise UserInputError(f"train-critic: hidden must list positive layer widths, got {self.hidden!r}")
+        if self.gamma is not None and not 0.0 < self.gamma < 1.0:
+            raise UserInputError(f"train-critic: gamma must lie in (0, 1), got {self.gamma}")
 
 
 class _Run:

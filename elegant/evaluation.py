@@ -28,9 +28,10 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import UserInputError, get_task, list_tasks, make_env
+from base_suites.atomic import atomic_write
+from base_suites.seeds import derive_seed
 from elegant.jiti import JITI
 from elegant.metrics import summarize
-from base_suites.atomic import atomic_write
 from elegant.report import write_run_report
 
 JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius")
@@ -45,7 +46,7 @@ def episode_start(seed: int, suite: str, task_index: int, episode: int, n_init_s
     """
     task = zlib.crc32(task_key(suite, task_index).encode())
     order = np.random.default_rng([int(seed), task]).permutation(int(n_init_states))
-    reset_seed = int(np.random.SeedSequence([int(seed), task, int(episode)]).generate_state(1)[0])
+    reset_seed = derive_seed(seed, task, episode)
     return int(order[int(episode) % int(n_init_states)]), reset_seed
 
 

@@ -16,8 +16,8 @@ follows LIBERO's `Sequential.learn_one_task` and `compute_metric`:
 - After task k the kept network is evaluated on every task j <= k: S[k, j] and S_elegant[k, j]. S[k, k]
   is the evaluation of the kept checkpoint on task k that already ran while learning it (episode starts
   depend only on the seed, and the policy acts deterministically), so it is read, not run again.
-- FWT, NBT and AUC come from `elegant.metrics.lifelong_metrics`, once on (S, C), once on the elegant pair
-  (which clamps C_elegant at its own best point, while S_elegant uses the checkpoint kept by success).
+- FWT, NBT and AUC come from `elegant.metrics.lifelong_metrics`, once on (S, C), once on the elegant pair,
+  whose curves are clamped at the checkpoints kept by success (the ones S_elegant evaluates).
 
 Layout of OUT (k is the position in the learning order, e an evaluation epoch)::
 
@@ -218,7 +218,8 @@ def run_lifelong(
         "kept_policies": run.kept,
         "S": _matrix(S[0]), "C": C[0].tolist(), "S_elegant": _matrix(S[1]), "C_elegant": C[1].tolist(),
         "metrics": lifelong_metrics(S[0], C[0]),
-        "metrics_elegant": lifelong_metrics(S[1], C[1]),
+        # Checkpoints are kept by success, so the elegant curves are clamped where those were kept.
+        "metrics_elegant": lifelong_metrics(S[1], C[1], kept=[int(np.argmax(row)) for row in C[0]]),
     }
     atomic_write_json(out / "lifelong.json", result)
     _write_report(out, result, S, C)

@@ -82,20 +82,23 @@ def summarize(records: Sequence[Record]) -> dict[str, Any]:
 
 # ---- lifelong learning (LIBERO, Liu et al. 2023) --------------------------------------------------
 
-def clamp_learning_curves(curves: np.ndarray) -> np.ndarray:
-    """LIBERO keeps the best checkpoint: from each row's first maximum on, every value is that maximum."""
+def clamp_learning_curves(curves: np.ndarray, kept: Sequence[int] | None = None) -> np.ndarray:
+    """LIBERO keeps the best checkpoint: from the kept point of each row on (default: the row's first
+    maximum), every value is the value there. `kept` matters for curves of another measure than the one
+    the checkpoint was chosen by (elegant success, with checkpoints kept by success)."""
     out = np.array(curves, dtype=np.float64)
-    for row in out:
-        best = int(np.argmax(row))
+    for k, row in enumerate(out):
+        best = int(np.argmax(row)) if kept is None else int(kept[k])
         row[best:] = row[best]
     return out
 
 
-def lifelong_metrics(S: np.ndarray, C: np.ndarray) -> dict[str, Any]:
+def lifelong_metrics(S: np.ndarray, C: np.ndarray, kept: Sequence[int] | None = None) -> dict[str, Any]:
     """FWT, NBT and AUC as in LIBERO's `compute_metric`, for K tasks learned in order (0-indexed).
 
     S[i, j]: success on task j after learning task i (only i >= j is read). C[k, e]: success on task k
-    at the e-th evaluation point while learning it (e = 0 before training), clamped here as LIBERO does.
+    at the e-th evaluation point while learning it (e = 0 before training), clamped here as LIBERO does
+    (at `kept`, the evaluation point of each task's kept checkpoint, if given; else at C's own best).
     FWT = mean of the clamped C; NBT_k = mean over tau > k of S[k, k] - S[tau, k] (0 for the last task);
     AUC_k = (mean_e C[k, e] + sum over tau > k of S[tau, k]) / (K - k); NBT and AUC average over k.
     """
@@ -106,7 +109,9 @@ def lifelong_metrics(S: np.ndarray, C: np.ndarray) -> dict[str, Any]:
     K = S.shape[0]
     if C.ndim != 2 or C.shape[0] != K or C.shape[1] == 0:
         raise UserInputError(f"lifelong learning curves C: expected shape ({K}, E) with E >= 1, got {C.shape}")
-    curves = clamp_learning_curves(C)
+    if kept is not None and len(kept) != K:
+        raise UserInputError(f"lifelong kept checkpoints: expected {K} indices, got {len(kept)}")
+    curves = clamp_learning_curves(C, kept)
     nbt = np.zeros(K)
     auc = np.zeros(K)
     for k in range(K):

@@ -38,6 +38,14 @@ def test_preference_counts_strict_clean_wins_per_knob():
     assert report["per_knob"]["tilt"] == pytest.approx({"pairs": 2, "clean_wins": 1, "clean_preferred": 0.5, "mean_gap": 0.5})
 
 
+def test_sides_are_scored_over_the_same_number_of_steps():
+    # The clean side runs longer and its later steps score high (states near a successful end): only
+    # the first two steps, the length of the knob side, may count.
+    clean = Continuation(np.zeros((4, STATE_SIZE)), np.array([[0.0] * 7] * 2 + [[1.0] * 7] * 2))
+    report = pair_preference(SumCritic(), [Pair("libero_object/0", 0, "drop", 5, clean, side(0.5, steps=2))])
+    assert report["clean_wins"] == 0 and report["mean_gap"] == pytest.approx(-0.5)
+
+
 def test_preference_without_pairs_has_no_fraction():
     assert pair_preference(SumCritic(), []) == {"pairs": 0, "clean_wins": 0, "clean_preferred": None, "mean_gap": None, "per_knob": {}}
 

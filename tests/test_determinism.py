@@ -51,13 +51,21 @@ def test_fixture_layout_follows_the_reset_seed_and_can_be_restored():
     env.reset(seed=1)
     assert env.fixture_layout() == first
     env.reset(seed=2)
+    region = "wooden_cabinet_1_top_region"
+    moved = env.sim.region(region).position - np.array(env.fixture_layout()["wooden_cabinet_1"][:3])
     env.set_fixture_layout(first)
-    assert env.fixture_layout() == first
     cabinet = first["wooden_cabinet_1"]
+    # What the ITC monitor and the expert read follows the restored layout: bodies and region sites.
     np.testing.assert_allclose(env.sim.position("wooden_cabinet_1"), cabinet[:3])
+    np.testing.assert_allclose(env.sim.region(region).position, np.array(cabinet[:3]) + moved, atol=1e-9)
     xml_layout = env.fixture_layout_from_xml(env.domain.sim.model.get_xml())
     np.testing.assert_allclose(np.array(xml_layout["wooden_cabinet_1"]), np.array(cabinet), atol=1e-5)
     with pytest.raises(UserInputError, match="does not have"):
         env.set_fixture_layout({"no_such_fixture": [0.0] * 7})
-    with pytest.raises(UserInputError, match="expected 7"):
+    with pytest.raises(UserInputError, match="expected 7 numbers"):
         env.set_fixture_layout({"wooden_cabinet_1": [0.0] * 3})
+    with pytest.raises(UserInputError, match="expected 7 numbers"):
+        env.set_fixture_layout({"wooden_cabinet_1": ["a"] * 7})
+    assert env.fixture_layout() == first, "a refused layout moves nothing"
+    with pytest.raises(UserInputError, match="has no body"):
+        env.fixture_layout_from_xml("<mujoco><worldbody/></mujoco>")

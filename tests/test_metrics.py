@@ -62,6 +62,14 @@ S = np.array([[0.8, np.nan, np.nan], [0.6, 0.9, np.nan], [0.4, 0.7, 1.0]])  # on
 C = np.array([[0.0, 0.6, 0.8, 0.7], [0.1, 0.9, 0.5, 0.9], [0.2, 0.4, 1.0, 0.6]])
 
 
+def test_clamping_at_given_kept_points():
+    # Elegant curves are clamped where the checkpoint was kept by success, not at their own maximum.
+    curves = clamp_learning_curves([[0.0, 0.6, 0.2, 0.7], [0.5, 0.1, 0.9, 0.0]], kept=[2, 0])
+    assert curves.tolist() == [[0.0, 0.6, 0.2, 0.2], [0.5, 0.5, 0.5, 0.5]]
+    with pytest.raises(UserInputError, match="expected 2 indices"):
+        lifelong_metrics(np.eye(2), np.zeros((2, 3)), kept=[0])
+
+
 def test_lifelong_metrics_by_hand():
     m = lifelong_metrics(S, C)
     # clamped curve means: 0.55, 0.70, 0.65

@@ -139,6 +139,9 @@ def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
 
 
 
+KNOB_STEP, KNOB_STEPS = 0.15, 7  # rad per wrist increment, and at most this many increments
+
+
 def turn(ctx: SkillContext, target: str, on: bool) -> Actions:
     """Turn a stove knob on or off: grasp its grip bar from above and rotate about the hinge."""
     view = ctx.view
@@ -151,15 +154,15 @@ def turn(ctx: SkillContext, target: str, on: bool) -> Actions:
     # Fingers close across the bar's thin horizontal side.
     yaw = 0.0 if extent[1] <= extent[0] else np.pi / 2
     grip = np.array([centre[0], centre[1], top[:, 2].max() - 0.015])
-    rot = nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6])
+    sign = (1.0 if on else -1.0) * np.sign(info["axis"][2] or 1.0)
+    rot = nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6], then=sign * KNOB_STEP * KNOB_STEPS)
     yield from ctx.goto(np.array([*grip[:2], grip[2] + 0.10]), rot, OPEN, tol=0.015, max_steps=150)
     yield from ctx.goto(grip, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
     yield from ctx.hold(CLOSE, 10, rot)
-    sign = (1.0 if on else -1.0) * np.sign(info["axis"][2] or 1.0)
     query = "turnon" if on else "turnoff"
     anchor = info["anchor"]
-    for k in range(1, 8):
-        angle = sign * 0.15 * k
+    for k in range(1, KNOB_STEPS + 1):
+        angle = sign * KNOB_STEP * k
         pos = anchor + rot_z(angle) @ (grip - anchor)
         yield from ctx.goto(pos, rot_z(angle) @ rot, CLOSE, tol=0.01, rot_tol=0.05, max_steps=25, speed=0.5)
         if view.predicate((query, target)) and k >= 5:

@@ -22,6 +22,7 @@ HAND_HALF_WIDTH = 0.035
 PART_MAX_WIDTH = 0.03  # widest part (handle) pinched on its own
 FINGER_HALF_WIDTH = 0.009  # finger pad extent across the closing direction
 FINGER_THICKNESS = 0.022  # room a finger needs beside the pinched part
+OPEN_HALF_SPAN = 0.04  # the open fingers come down this far out from the grip centre
 YAWS = np.deg2rad(np.arange(-90, 90, 15))
 
 
@@ -99,7 +100,8 @@ def _covers_centre(parts: np.ndarray, shape: Shape) -> bool:
     return False
 
 
-_LATTICE = np.array([[a, b, c] for a in np.linspace(-1, 1, 5) for b in np.linspace(-1, 1, 5) for c in np.linspace(-1, 1, 3)])
+# 9 x 9 x 3 points per box: ~1 cm apart on a 9 cm pot body, finer than a finger's band.
+_LATTICE = np.array([[a, b, c] for a in np.linspace(-1, 1, 9) for b in np.linspace(-1, 1, 9) for c in np.linspace(-1, 1, 3)])
 
 
 def fill_boxes(parts: np.ndarray) -> np.ndarray:
@@ -113,8 +115,8 @@ def fill_boxes(parts: np.ndarray) -> np.ndarray:
 
 
 def _part_pinches(parts: np.ndarray) -> list[Grasp]:
-    """Pinches of one slender part (a handle): the fingers close across it and, beside it, find no
-    other part of the object above the fingertips."""
+    """Pinches of one slender part (a handle): where the fingers come down open and close across it,
+    they find no other part of the object above the fingertips."""
     everything = fill_boxes(parts)
     grasps = []
     for pts in parts:
@@ -133,7 +135,8 @@ def _part_pinches(parts: np.ndarray) -> list[Grasp]:
             rel = above[:, :2] - centre[:2]
             along = np.abs(rel @ axis[:2])
             across = np.abs(rel @ np.array([-axis[1], axis[0]]))
-            in_finger = (across < FINGER_HALF_WIDTH) & (along > width / 2 + 0.003) & (along < width / 2 + FINGER_THICKNESS)
+            # Where the fingers pass: from their open position down to closed on the part.
+            in_finger = (across < FINGER_HALF_WIDTH) & (along > width / 2 + 0.003) & (along < OPEN_HALF_SPAN + FINGER_THICKNESS / 2)
             if not in_finger.any():
                 best = (width, float(yaw))
         if best is not None:

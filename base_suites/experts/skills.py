@@ -111,12 +111,16 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
             return centre
         long_axis = int(np.argmax(half))
         return centre + axes[:, long_axis] * SHARED_OFFSET * half[long_axis]
-    footprint = view.geom_points(held)[:, :2] - view.position(held)[:2]
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(others)
+    # The footprint filled, not just its corners: a small object could otherwise sit inside it unseen.
+    footprint = fill_boxes(view.geom_points(held).reshape(-1, 8, 3))[:, :2] - view.position(held)[:2]
     grid = np.linspace(-INNER, INNER, 9)
     spots = sorted((centre + axes @ (np.array([u, v]) * half) for u in grid for v in grid), key=lambda p: float(np.linalg.norm(p - centre)))
     best, best_room = centre, -np.inf
     for spot in spots:
-        room = float(np.min(np.linalg.norm(others[:, None, :] - (footprint + spot)[None, :, :], axis=-1)))
+        room = float(tree.query(footprint + spot)[0].min())
         if room > gap:
             return spot
         if room > best_room:

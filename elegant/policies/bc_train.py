@@ -208,7 +208,8 @@ def train_policy(
     origin = {  # what this run starts from beyond the files and the config: recorded, and checked on resume
         "tasks": None if tasks is None else list(data.layouts),
         "features": None if features is None else _digest(features.to_dict()),
-        "init_from": None if init is None else {"path": os.path.abspath(init_from), "model_sha256": init[2]["model_sha256"]},
+        # The start network by content, not by path: a moved or copied run directory still resumes.
+        "init_from": None if init is None else {"model_sha256": init[2]["model_sha256"]},
     }
     features = _input_features(data, cfg, features, init, init_from)
     windows = _Windows(data, features)
@@ -231,7 +232,8 @@ def train_policy(
     def publish(directory: str) -> None:
         """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
         os.makedirs(directory, exist_ok=True)
-        training = {"config": asdict(cfg), "data": data.files, "loss_history": list(losses), "num_samples": len(windows), **origin}
+        training = {"config": asdict(cfg), "data": data.files, "loss_history": list(losses), "num_samples": len(windows), **origin,
+                    "init_from_path": None if init_from is None else os.path.abspath(init_from)}
         write_artifact(directory, net, features, model_spec, training)
 
     start_epoch = 0
