@@ -3,7 +3,8 @@
 A placement is judged once per attempt (an attempt starts when the robot grasps the object):
 - when its on/in sub-goal becomes true during the episode (LIBERO ends a successful episode right there,
   so this is often the only chance), or
-- when the object, released within `placement_radius` of its target or touching it, comes to rest.
+- when the object, released within `placement_radius` of its target or touching it, comes to rest
+  (released near the target counts even if it then rolls or bounces farther away: that is the failure).
 The object must then lie within `place_xy_tolerance` of the target's centre; where several goal objects
 share one region (two items in a basket, two pots on a stove) they cannot all sit at its centre, so the
 tolerance there grows per axis to the region's half size minus `region_edge_margin` (an ellipse test).
@@ -24,6 +25,7 @@ from itc.spec import Placement
 @dataclass
 class _Attempt:
     released: bool = False
+    release_xy: np.ndarray | None = None
     rest_steps: int = 0
     judged: bool = False
     placed: bool = False
@@ -56,13 +58,14 @@ class PoseAccuracy(Constraint):
         attempt = self._attempts[k]
         if not held and self._prev_held == obj:
             attempt.released, attempt.rest_steps = True, 0
+            attempt.release_xy = ctx.position(obj)[:2].copy()
         if goal_now and not self._goal_held[k] and not attempt.judged:
             return self._judge(ctx, placement, attempt)
         if attempt.released and not held:
             attempt.rest_steps = attempt.rest_steps + 1 if ctx.speed(obj) < p.rest_speed else 0
             if attempt.rest_steps >= p.rest_steps:
                 attempt.released = False
-                if not attempt.judged and self._near(ctx, placement):
+                if not attempt.judged and self._near(ctx, placement, attempt.release_xy):
                     return self._judge(ctx, placement, attempt)
         if attempt.placed and not held and not attempt.released:
             ok, error = self._error(ctx, placement)
@@ -94,7 +97,9 @@ class PoseAccuracy(Constraint):
         distance = cm(float(np.linalg.norm(local)))
         return ok, f"{distance} from its centre (offset {cm(local[0])}, {cm(local[1])}; allowed {cm(tol[0])} x {cm(tol[1])})"
 
-    def _near(self, ctx: StepContext, placement: Placement) -> bool:
+    def _near(self, ctx: StepContext, placement: Placement, release_xy: np.ndarray | None) -> bool:
+        """Whether a release was a placement attempt at the target: it rests, or was let go, near it."""
         centre, _, _ = self._centre(ctx, placement)
-        close = float(np.linalg.norm((ctx.position(placement.obj) - centre)[:2])) <= self.params.placement_radius
+        points = [ctx.position(placement.obj)[:2]] + ([release_xy] if release_xy is not None else [])
+        close = min(float(np.linalg.norm(p - centre[:2])) for p in points) <= self.params.placement_radius
         return close or (placement.target_entity is not None and placement.target_entity in ctx.touches(placement.obj))
