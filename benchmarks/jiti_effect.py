@@ -50,17 +50,19 @@ def main() -> None:
     parser.add_argument("--demos", type=int, default=50, help="mixed-quality demos per task")
     parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task and mode")
     parser.add_argument("--critic-steps", type=int, default=20000)
-    parser.add_argument("--critic-gamma", type=float)
+    parser.add_argument("--critic-gamma", type=float, default=0.9)
+    parser.add_argument("--critic-cql-weight", type=float, default=1.0)
     parser.add_argument("--policy-epochs", type=int, default=50)
     parser.add_argument("--trust-radius", type=float, default=0.3)
-    parser.add_argument("--threshold", type=float)
-    parser.add_argument("--threshold-mode", choices=("absolute", "std"))
+    parser.add_argument("--threshold", type=float, default=2.0)
+    parser.add_argument("--threshold-mode", choices=("absolute", "std"), default="std")
     parser.add_argument("--max-steps", type=int)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     config = ChainConfig(
         suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
-        demos=args.demos, critic_steps=args.critic_steps, critic_gamma=args.critic_gamma, policy_epochs=args.policy_epochs,
+        demos=args.demos, critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
+        critic_cql_weight=args.critic_cql_weight, policy_epochs=args.policy_epochs,
         episodes=args.episodes, modes=("base", "always", "jiti"), seed=args.seed, trust_radius=args.trust_radius,
         threshold=args.threshold, threshold_mode=args.threshold_mode, max_steps=args.max_steps,
     )

@@ -24,9 +24,12 @@ class ChainConfig:
     """Which tasks, how much data and training, which JITI modes to compare.
 
     `tasks` are indices applied to every suite (None: all ten). `critic_gamma` None keeps the
-    annotation's discount. `trust_radius`: JITI (and `always`) only pick among candidates within this L2
+    annotation's discount; 0.9 and a CQL weight of 1 ranked held-out actions better than 0.99 and 5 on
+    libero_object/0 (AUROC 0.57 -> 0.64) and keep Q within its feasible range at these data sizes. `trust_radius`: JITI (and `always`) only pick among candidates within this L2
     distance of the base action; with a critic trained on a few dozen demos, unrestricted re-ranking
-    chose far-off samples and success fell to 0%. `max_steps` None keeps the suites' horizons.
+    chose far-off samples and success fell to 0%. `threshold` in units of the running std of Q (2.0):
+    on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
+    suites' horizons.
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -34,14 +37,15 @@ class ChainConfig:
     demos: int = 30
     quality: str = "mixed"
     critic_steps: int = 1500
-    critic_gamma: float | None = None
+    critic_gamma: float | None = 0.9
+    critic_cql_weight: float = 1.0
     policy_epochs: int = 40
     episodes: int = 6
     modes: tuple[str, ...] = ("base", "jiti")
     seed: int = 0
     trust_radius: float | None = 0.3
-    threshold: float | None = None
-    threshold_mode: str | None = None
+    threshold: float | None = 2.0
+    threshold_mode: str | None = "std"
     max_steps: int | None = None
 
     def validate(self) -> None:
@@ -119,7 +123,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     if not os.path.exists(os.path.join(critic_dir, "critic.json")):
         say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
         train_critic(list(annotated.values()), critic_dir, steps=cfg.critic_steps, seed=cfg.seed, gamma=cfg.critic_gamma,
-                     resume=True, progress=progress)
+                     cql_weight=cfg.critic_cql_weight, resume=True, progress=progress)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
         train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, resume=True, progress=progress)
