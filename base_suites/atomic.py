@@ -43,6 +43,14 @@ def read_json_file(path: str | os.PathLike, what: str) -> Any:
         raise UserInputError(f"{os.fspath(path)}: corrupt {what} ({exc.__class__.__name__})") from None
 
 
+def changed_fields(old: Any, new: dict, ignore: tuple[str, ...] = ()) -> list[tuple[str, Any, Any]]:
+    """(key, stored value, this run's value) for each setting in which a run directory's stored record
+    `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
+    by key; a resume refuses any of them (every resumable command compares settings this one way)."""
+    old = old if isinstance(old, dict) else {}
+    return [(k, old.get(k), new.get(k)) for k in sorted(set(old) | set(new)) if k not in ignore and old.get(k) != new.get(k)]
+
+
 def library_versions() -> dict[str, str]:
     """Versions of the libraries whose behaviour a saved artifact depends on (read from metadata, no imports)."""
     from importlib import metadata

@@ -305,7 +305,7 @@ class LiberoEnv(gym.Env):
         return layout
 
     def _fixture_bodies(self) -> dict[str, int]:
-        return {name: int(self.domain.obj_body_id[name]) for name in self.sim.fixtures}
+        return {name: self.sim.body_id(name) for name in self.sim.fixtures}
 
     def get_sim_state(self) -> np.ndarray:
         """The flattened MuJoCo state (time, qpos, qvel), as stored in LIBERO's HDF5 `states`."""

@@ -118,6 +118,10 @@ class SimView:
         return entities
 
     # ---- poses and motion -------------------------------------------------------------------
+    def body_id(self, entity: str) -> int:
+        """MuJoCo id of an object's or fixture's root body (what LIBERO places and the poses below read)."""
+        return self._body_id[entity]
+
     def pose(self, entity: str) -> tuple[np.ndarray, np.ndarray]:
         """World position and orientation quaternion (x, y, z, w) of an object or fixture."""
         body = self._body_id[entity]

@@ -36,11 +36,11 @@ from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
 from torchrl.objectives.value.functional import reward2go
 
-NO_FLOOR = -1.0e6  # an MC "floor" that never clips (for demos whose return is not a lower bound)
-
 from annotations import DemoFile, TaskFeatureEncoder
 from base_suites.errors import UserInputError
 from critics.normalization import Normalization
+
+NO_FLOOR = -1.0e6  # an MC "floor" that never clips (for demos whose return is not a lower bound)
 
 MC_RETURN_TOLERANCE = 1e-4
 

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from annotations import CRITERIA, DemoFile
+from annotations import CRITERIA, DemoFile, task_key
 from base_suites.errors import UserInputError, unknown_choice
 from base_suites.seeds import derive_seed
 from critics.artifact import Critic, load
@@ -207,7 +207,7 @@ def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits:
 
     _check_pair_inputs(knobs, inits, window)
     env = make_env(suite, task, seed=seed, max_steps=max_steps)
-    key = f"{env.task.suite}/{env.task.index}"
+    key = task_key(env.task.suite, env.task.index)
     clean = ScriptedExpert(env, "clean", seed=seed)
     experts = {knob: ScriptedExpert(env, {knob: 1.0}, seed=seed) for knob in knobs}
     pairs, skipped = [], {knob: 0 for knob in knobs}

@@ -27,9 +27,8 @@ from tensordict import TensorDictBase
 from tqdm.auto import tqdm
 from torchrl.objectives import SoftUpdate
 
-from base_suites.atomic import atomic_write
+from base_suites.atomic import atomic_write, changed_fields, library_versions
 from base_suites.errors import UserInputError
-from base_suites.atomic import library_versions
 from critics.artifact import atomic_torch_save, save_critic
 from critics.data import TransitionData, load_transitions, make_replay_buffer
 from critics.loss import CalQLLoss
@@ -141,12 +140,10 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
-    saved = {k: v for k, v in state["config"].items() if k not in _RESUMABLE_CHANGES}
-    wanted = {k: v for k, v in asdict(cfg).items() if k not in _RESUMABLE_CHANGES}
-    changed = sorted(k for k in set(saved) | set(wanted) if saved.get(k) != wanted.get(k))
+    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES)
     if changed:
-        raise UserInputError(f"{path}: cannot resume with different {', '.join(changed)} (checkpoint has "
-                             + ", ".join(f"{k}={saved.get(k)!r}" for k in changed) + ")")
+        raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
+                             + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed) + ")")
     if state["fingerprint"] != fingerprint:
         raise UserInputError(f"{path}: the training data changed since this checkpoint was written (fingerprint differs)")
 

@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import UserInputError, get_task, list_tasks, make_env
-from base_suites.atomic import atomic_write
+from base_suites.atomic import atomic_write, changed_fields, read_json_file
 from base_suites.seeds import derive_seed
 from elegant.jiti import JITI
 from elegant.metrics import summarize
@@ -116,13 +116,13 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
     if path.exists():
         if not resume:
             raise UserInputError(f"{out} already holds a run (config.json); resume it (--resume) or choose another directory")
-        old = json.loads(path.read_text())
-        for key in sorted(set(old) | set(config)):
-            if key != "episodes" and old.get(key) != config.get(key):
-                raise UserInputError(
-                    f"{path}: field {key!r} is {old.get(key)!r} but this run has {config.get(key)!r}; "
-                    "resume only with the same settings (only episodes may change)"
-                )
+        changed = changed_fields(read_json_file(path, "run config"), config, ignore=("episodes",))
+        if changed:
+            key, before, now = changed[0]
+            raise UserInputError(
+                f"{path}: field {key!r} is {before!r} but this run has {now!r}; "
+                "resume only with the same settings (only episodes may change)"
+            )
     (out / "traces").mkdir(parents=True, exist_ok=True)
     atomic_write(path, json.dumps(config, indent=2))
 

@@ -45,7 +45,7 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import get_task
-from base_suites.atomic import atomic_write, atomic_write_json, read_json_file
+from base_suites.atomic import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.errors import UserInputError
 from elegant.evaluation import evaluate
 from elegant.metrics import lifelong_metrics
@@ -109,11 +109,11 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
     if out.exists() and not out.is_dir():
         raise UserInputError(f"{out}: exists and is not a directory")
     if resume and path.exists():
-        old = read_json_file(path, "lifelong config")
-        for key in sorted(set(old) | set(config)):
-            if old.get(key) != config.get(key):
-                raise UserInputError(f"{path}: field {key!r} is {old.get(key)!r} but this run has {config.get(key)!r}; "
-                                     "resume only with the same settings")
+        changed = changed_fields(read_json_file(path, "lifelong config"), config)
+        if changed:
+            key, before, now = changed[0]
+            raise UserInputError(f"{path}: field {key!r} is {before!r} but this run has {now!r}; "
+                                 "resume only with the same settings")
     elif out.exists() and any(out.iterdir()):
         hint = "resume it (--resume)" if path.exists() else "it holds no lifelong run"
         raise UserInputError(f"{out}: not empty ({hint}); choose another directory")

@@ -13,7 +13,7 @@ import os
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from base_suites.atomic import atomic_write
+from base_suites.atomic import atomic_write, changed_fields, read_json_file
 from base_suites.errors import UserInputError
 
 MODES = ("base", "always", "jiti")
@@ -73,12 +73,9 @@ QUICKSTART = ChainConfig()
 def _check_settings(out: str, cfg: ChainConfig) -> None:
     path = os.path.join(out, "chain.json")
     settings = json.loads(json.dumps(asdict(cfg)))  # tuples as lists, as stored
-    if os.path.exists(path):
-        with open(path) as f:
-            previous = json.load(f)
-        if previous != settings:
-            changed = sorted(k for k in set(previous) | set(settings) if previous.get(k) != settings.get(k))
-            raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(changed)}); choose another --out")
+    changed = changed_fields(read_json_file(path, "chain settings"), settings) if os.path.exists(path) else []
+    if changed:
+        raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
     atomic_write(path, json.dumps(settings, indent=2))
 
 

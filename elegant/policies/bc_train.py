@@ -27,8 +27,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from base_suites.atomic import atomic_write, changed_fields
 from base_suites.errors import UserInputError
-from base_suites.atomic import atomic_write
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
@@ -103,10 +103,10 @@ def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
         state = torch.load(path, weights_only=True)
     except Exception as exc:  # a truncated or foreign file surfaces as many exception types
         raise UserInputError(f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume") from None
-    old = state.get("fingerprint", {}) if isinstance(state, dict) else {}
-    for key, value in fingerprint.items():
-        if old.get(key) != value:
-            raise UserInputError(f"{path}: cannot resume, field {key!r} was {old.get(key)!r} and is now {value!r}")
+    changed = changed_fields(state.get("fingerprint") if isinstance(state, dict) else None, fingerprint)
+    if changed:
+        key, was, now = changed[0]
+        raise UserInputError(f"{path}: cannot resume, field {key!r} was {was!r} and is now {now!r}")
     return state
 
 
