@@ -52,6 +52,7 @@ def main() -> None:
     parser.add_argument("--critic-steps", type=int, default=20000)
     parser.add_argument("--critic-gamma", type=float, default=0.9)
     parser.add_argument("--critic-cql-weight", type=float, default=1.0)
+    parser.add_argument("--critic-reward", default="segment", help="step or segment (see critics.load_transitions)")
     parser.add_argument("--policy-epochs", type=int, default=50)
     parser.add_argument("--trust-radius", type=float, default=0.3)
     parser.add_argument("--threshold", type=float, default=2.0)
@@ -62,7 +63,7 @@ def main() -> None:
     config = ChainConfig(
         suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
         demos=args.demos, critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
-        critic_cql_weight=args.critic_cql_weight, policy_epochs=args.policy_epochs,
+        critic_cql_weight=args.critic_cql_weight, critic_reward=args.critic_reward, policy_epochs=args.policy_epochs,
         episodes=args.episodes, modes=("base", "always", "jiti"), seed=args.seed, trust_radius=args.trust_radius,
         threshold=args.threshold, threshold_mode=args.threshold_mode, max_steps=args.max_steps,
     )

@@ -38,7 +38,7 @@ def atomic_torch_save(path: str, obj: Any) -> None:
 
 @dataclass(frozen=True)
 class _Binding:
-    """One task's observation encoding folded into the critics' first layer.
+    """One task's observation encoding folded into each critic's first layer.
 
     The normalised encoding of a state x of the task is t + P(x / std), where t (the encoding of a zero
     state: padding, task one-hot, -mean/std) is fixed and P pads into the first `state_size` columns.
@@ -48,16 +48,46 @@ class _Binding:
 
     task: str
     state_size: int
-    state_weight: torch.Tensor  # (state_size, C * H)
-    state_bias: torch.Tensor  # (C * H,)
+    state_weight: list[np.ndarray]  # per critic (state_size, H)
+    state_bias: list[np.ndarray]  # per critic (H,)
+
+
+def _blas_operand(tensor: torch.Tensor) -> np.ndarray:
+    """A float32 weight in Fortran order: the operand order this CPU's BLAS multiplies fastest for
+    (16, 256) @ (256, 256) (21 us against 27 us in C order and 45 us through torch)."""
+    return np.asfortranarray(tensor.detach().numpy().astype(np.float32))
+
+
+@dataclass(frozen=True)
+class _OneCritic:
+    """One of the twin Q networks' layers after the state part, as NumPy arrays."""
+
+    action_weight: np.ndarray  # (A, H)
+    hidden: list[tuple[np.ndarray, np.ndarray]]  # (weight (H, H'), bias (H',)) per hidden layer after the first
+    last_row: np.ndarray  # (H,)
+    last_bias: np.float32
+
+    def q(self, per_state: np.ndarray, scaled_actions: np.ndarray) -> np.ndarray:
+        """Q of B states x K actions: per_state (B, H) is the first layer's state part with its bias,
+        scaled_actions (B, K, A). Returns (B * K,)."""
+        batch, k, a = scaled_actions.shape
+        h = (scaled_actions.reshape(batch * k, a) @ self.action_weight).reshape(batch, k, -1)
+        h += per_state[:, None, :]
+        h = np.maximum(h, 0.0, out=h).reshape(batch * k, -1)
+        for weight, bias in self.hidden:
+            h = h @ weight
+            h += bias
+            np.maximum(h, 0.0, out=h)
+        return h @ self.last_row + self.last_bias
 
 
 class Critic:
     """An elegance critic: Q(s, a) = min over the twin critics, for states of the task it is bound to.
 
-    `q` evaluates the saved `TwinQNetwork` with its weights rearranged once at construction (both critics'
-    first layers side by side, the task encoding folded in at `bind`), because JITI calls it every step:
-    the same numbers as `network(obs, actions)` on encoded, normalised inputs, in about ten torch ops.
+    `q` evaluates the saved `TwinQNetwork` in NumPy with its weights rearranged once at construction
+    (per critic, in BLAS's preferred order, the task encoding folded in at `bind`), because JITI calls it
+    every step: the same numbers as `network(obs, actions)` on encoded, normalised inputs, in about half
+    the time of the equivalent torch ops at this size (1 state x 16 actions, one thread).
     """
 
     def __init__(
@@ -75,12 +105,16 @@ class Critic:
         self.path = path
         self._center = normalization.action_center.astype(np.float32)
         self._inv_half = (1.0 / normalization.action_half_range).astype(np.float32)
-        n, a, width = network.action_weight.shape
-        self._n_critics, self._width = n, width
-        self._action_weight = network.action_weight.detach().permute(1, 0, 2).reshape(1, a, n * width)
-        self._middle = [(w.detach(), b.detach()) for w, b in zip(list(network.weights)[:-1], list(network.biases)[:-1])]
-        self._last_row = network.weights[-1].detach().transpose(1, 2)  # (C, 1, H)
-        self._last_bias = network.biases[-1].detach().view(n, 1)
+        weights, biases = list(network.weights), list(network.biases)
+        self._critics = [
+            _OneCritic(
+                _blas_operand(network.action_weight[c]),
+                [(_blas_operand(w[c]), b[c, 0].detach().numpy().astype(np.float32)) for w, b in zip(weights[:-1], biases[:-1])],
+                weights[-1][c, :, 0].detach().numpy().astype(np.float32),
+                np.float32(biases[-1][c, 0, 0].item()),
+            )
+            for c in range(network.n_critics)
+        ]
         self._binding: _Binding | None = None
 
     @property
@@ -92,11 +126,9 @@ class Critic:
         size = sum(s for _, s in self.encoder.layouts[key])
         zero_state = torch.from_numpy(self.normalization.observations(self.encoder.encode(np.zeros(size, dtype=np.float32), key)))
         obs_weight = self.network.obs_weight.detach()  # (C, D, H)
-        n, width = self._n_critics, self._width
-        bias = self.network.first_bias.detach().view(n, width) + torch.einsum("d,cdh->ch", zero_state, obs_weight)
-        inv_std = torch.from_numpy(1.0 / self.normalization.obs_std[:size])
-        weight = obs_weight[:, :size, :] * inv_std[None, :, None]
-        return _Binding(key, size, weight.permute(1, 0, 2).reshape(size, n * width).contiguous(), bias.reshape(n * width))
+        bias = self.network.first_bias.detach()[:, 0, :] + torch.einsum("d,cdh->ch", zero_state, obs_weight)
+        weight = obs_weight[:, :size, :] * torch.from_numpy(1.0 / self.normalization.obs_std[:size])[None, :, None]
+        return _Binding(key, size, [_blas_operand(w) for w in weight], [b.numpy().astype(np.float32) for b in bias])
 
     def bind(self, metadata: Mapping[str, Any]) -> "Critic":
         """Score states of the env described by `metadata` (suite, task_index, state_layout) from now on.
@@ -123,15 +155,12 @@ class Critic:
                 f"{self.path}: Critic.q expects state ({b.state_size},) with actions (N, A) or states (B, {b.state_size}) "
                 f"with actions (B, N, A) for task {b.task}; got {state.shape} and {actions.shape}"
             )
-        batch, k, a = actions.shape
         scaled = np.clip((actions - self._center) * self._inv_half, -1.0, 1.0)
-        with torch.inference_mode():
-            per_state = torch.addmm(b.state_bias, torch.from_numpy(state), b.state_weight)
-            h = torch.baddbmm(per_state.unsqueeze(1), torch.from_numpy(scaled), self._action_weight.expand(batch, a, -1)).relu_()
-            h = h.view(batch * k, self._n_critics, self._width).transpose(0, 1)
-            for w, bias in self._middle:
-                h = torch.baddbmm(bias, h, w).relu_()
-            q = ((h * self._last_row).sum(-1) + self._last_bias).amin(0).view(batch, k).numpy()
+        q = None
+        for critic, weight, bias in zip(self._critics, b.state_weight, b.state_bias):
+            q_c = critic.q(state @ weight + bias, scaled)
+            q = q_c if q is None else np.minimum(q, q_c, out=q)
+        q = q.reshape(actions.shape[:2])
         return q[0] if single else q
 
 

@@ -9,8 +9,10 @@ Each step t of each demo becomes one transition, in TorchRL's layout (batch = tr
                                       discount (by default the annotation's; Cal-QL's floor;
                                       NO_FLOOR for demos that end without success)
     next/observation   (D,)  float32  the same encoding of the state after the action
-    next/reward        (1,)  float32  the violation penalty r_t - 1 of the elegance reward r_t
-                                      (0 where all four ITCs hold, -1 where one is violated)
+    next/reward        (1,)  float32  the violation penalty: 0 where all four ITCs hold, -1 where one
+                                      is violated, judged per step (r_t - 1 of the elegance reward r_t,
+                                      `reward="step"`) or per 25-frame window (`reward="segment"`: every
+                                      step of a window that violates a criterion gets -1)
     next/done          (1,)  bool     True at the last step of a demo
     next/terminated    (1,)  bool     True at the last step of a demo that reached the task goal
     next/truncated     (1,)  bool     True at the last step of a demo that did not
@@ -36,9 +38,11 @@ from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
 from torchrl.objectives.value.functional import reward2go
 
-from annotations import DemoFile, TaskFeatureEncoder
-from base_suites.errors import UserInputError
+from annotations import CRITERIA, DemoFile, TaskFeatureEncoder
+from base_suites.errors import UserInputError, unknown_choice
 from critics.normalization import Normalization
+
+REWARDS = ("step", "segment")  # what the violation penalty is judged on: each step, or each step's window
 
 NO_FLOOR = -1.0e6  # an MC "floor" that never clips (for demos whose return is not a lower bound)
 
@@ -82,6 +86,7 @@ class _RawDemo:
     actions: np.ndarray
     reward: np.ndarray
     mc_return: np.ndarray
+    window_kept: np.ndarray  # per step: did its 25-frame window keep all four criteria
     success: bool
 
 
@@ -92,8 +97,29 @@ def _annotation_gamma(f: DemoFile) -> float:
     return float(annotation["gamma"])
 
 
+def _segment_length(f: DemoFile) -> int:
+    annotation = f.attrs.get("annotation")
+    if not isinstance(annotation, dict) or "segment_length" not in annotation:
+        raise UserInputError(f"{f.path}: data.annotation has no 'segment_length' (expected the JSON written by `elegant annotate`)")
+    return int(annotation["segment_length"])
+
+
+def _window_kept(demo, length: int, where: str) -> np.ndarray:
+    """Per step, whether the step's window kept every criterion (human labels included: they live there)."""
+    windows = np.arange(demo.num_samples) // length
+    expected = int(windows[-1]) + 1
+    kept = np.ones(demo.num_samples, dtype=bool)
+    for c in CRITERIA:
+        segments = demo.itc_segments[c]
+        if segments.shape != (expected,):
+            raise UserInputError(f"{where}/itc_segments/{c} has shape {segments.shape}, expected ({expected},) windows of {length} steps")
+        kept &= segments[windows]
+    return kept
+
+
 def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
     demos = []
+    length = _segment_length(f)
     for demo in f:
         where = f"{f.path}: data/{demo.name}"
         if demo.task_key not in layouts:
@@ -114,7 +140,7 @@ def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
             path=f.path, name=demo.name, task=demo.task_key,
             obs=demo.obs, next_obs=demo.next_obs, actions=np.asarray(demo.actions, dtype=np.float32),
             reward=np.asarray(demo.elegance_reward, dtype=np.float32), mc_return=np.asarray(demo.mc_return, dtype=np.float32),
-            success=bool(demo.rewards[-1] > 0),
+            window_kept=_window_kept(demo, length, where), success=bool(demo.rewards[-1] > 0),
         ))
     return demos
 
@@ -137,14 +163,21 @@ def _column(values: np.ndarray | torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(values).unsqueeze(-1)
 
 
-def load_transitions(paths: Sequence[str], gamma: float | None = None) -> TransitionData:
+def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: str = "step") -> TransitionData:
     """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
 
     gamma: the critic's discount (default: the annotation's). A shorter horizon than the annotation's
     makes Q judge the violations about to happen rather than the rest of the episode, which is what
-    picking among candidate actions at one moment needs; the returns are recomputed with it."""
+    picking among candidate actions at one moment needs; the returns are recomputed with it.
+    reward: "step" penalises the steps at which a criterion is violated; "segment" every step of a
+    25-frame window that violates one. A violation judged at one instant (an object coming to rest off
+    target) is one step under "step", next to a tilt's dozens, so Q barely registers it; per window every
+    violation weighs a window, the actions leading up to it inside the window share its penalty, and
+    human labels (which are per window) reach the critic as they are."""
     if gamma is not None and not 0.0 < gamma < 1.0:
         raise UserInputError(f"gamma must lie in (0, 1), got {gamma}")
+    if reward not in REWARDS:
+        raise unknown_choice("reward", reward, REWARDS)
     if not paths:
         raise UserInputError("no annotated HDF5 files given")
     layouts: dict[str, list] = {}
@@ -170,20 +203,22 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None) -> Transi
     obs = np.concatenate([encoder.encode(d.obs, d.task) for d in demos])
     next_obs = np.concatenate([encoder.encode(d.next_obs, d.task) for d in demos])
     actions = np.concatenate([d.actions for d in demos])
-    reward = torch.from_numpy(np.concatenate([d.reward for d in demos]))
-    last = np.zeros(len(reward), dtype=bool)
+    elegance = torch.from_numpy(np.concatenate([d.reward for d in demos]))
+    last = np.zeros(len(elegance), dtype=bool)
     last[np.cumsum([len(d.reward) for d in demos]) - 1] = True
     terminal = np.zeros_like(last)
     terminal[last] = [d.success for d in demos]
     done = torch.from_numpy(last)
-    _check_returns(demos, reward2go(reward, done, annotation_gamma, time_dim=-1).numpy(), annotation_gamma)
+    _check_returns(demos, reward2go(elegance, done, annotation_gamma, time_dim=-1).numpy(), annotation_gamma)
     gamma = annotation_gamma if gamma is None else float(gamma)
-    # Train on the violation-penalty form of the elegance reward (r - 1: 0 where all four ITCs hold, -1
-    # where one breaks). With r itself, Q counts the kept steps still to come, so it mostly measures how
-    # long the episode has left and rewards dawdling; with r - 1 it is minus the discounted violations to
-    # come, which is what ranking actions by elegance needs.
-    reward = reward - 1.0
-    mc_return = reward2go(reward, done, gamma, time_dim=-1)
+    # Train on a violation penalty (0 where all four ITCs hold, -1 where one breaks), not on r itself:
+    # with r, Q counts the kept steps still to come, so it mostly measures how long the episode has left
+    # and rewards dawdling; with the penalty it is minus the discounted violations to come, which is what
+    # ranking actions by elegance needs.
+    if reward == "segment":
+        elegance = torch.from_numpy(np.concatenate([d.window_kept for d in demos]).astype(np.float32))
+    penalty = elegance - 1.0
+    mc_return = reward2go(penalty, done, gamma, time_dim=-1)
     # A demo cut off without success could have violated more later: its MC return is then an upper
     # bound, not the lower bound Cal-QL's floor needs, so those transitions get no floor.
     truncated_rows = torch.from_numpy(np.repeat([not d.success for d in demos], [len(d.reward) for d in demos]))
@@ -197,13 +232,13 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None) -> Transi
             "mc_return": _column(mc_return),
             "next": {
                 "observation": torch.from_numpy(normalization.observations(next_obs)),
-                "reward": _column(reward),
+                "reward": _column(penalty),
                 "done": _column(done),
                 "terminated": _column(torch.from_numpy(terminal)),
                 "truncated": _column(torch.from_numpy(last & ~terminal)),
             },
         },
-        batch_size=[len(reward)],
+        batch_size=[len(penalty)],
     )
     return TransitionData(transitions, encoder, normalization, float(gamma), len(demos))
 

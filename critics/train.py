@@ -28,9 +28,9 @@ from tqdm.auto import tqdm
 from torchrl.objectives import SoftUpdate
 
 from base_suites.atomic import atomic_write, changed_fields, library_versions
-from base_suites.errors import UserInputError
+from base_suites.errors import UserInputError, unknown_choice
 from critics.artifact import atomic_torch_save, save_critic
-from critics.data import TransitionData, load_transitions, make_replay_buffer
+from critics.data import REWARDS, TransitionData, load_transitions, make_replay_buffer
 from critics.loss import CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
@@ -63,6 +63,7 @@ class TrainConfig:
     log_every: int = 100
     checkpoint_every: int = 1000
     gamma: float | None = None  # None: the annotation's
+    reward: str = "step"  # the violation penalty per step or per window (critics.data.REWARDS)
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every"):
@@ -73,6 +74,8 @@ class TrainConfig:
             raise UserInputError(f"train-critic: hidden must list positive layer widths, got {self.hidden!r}")
         if self.gamma is not None and not 0.0 < self.gamma < 1.0:
             raise UserInputError(f"train-critic: gamma must lie in (0, 1), got {self.gamma}")
+        if self.reward not in REWARDS:
+            raise unknown_choice("train-critic reward", self.reward, REWARDS)
 
 
 class _Run:
@@ -189,6 +192,7 @@ def train_critic(
     with_lagrange: bool = False,
     log_every: int = 100,
     gamma: float | None = None,
+    reward: str = "step",
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -198,7 +202,7 @@ def train_critic(
     one); checkpoint_every / log_every: steps between checkpoints / metrics rows; n_actions: N of the
     uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
     cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
-    annotation's; see `critics.data.load_transitions`). Learning rates and tau are `TrainConfig`'s.
+    annotation's) and reward ("step" or "segment"): see `critics.data.load_transitions`. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -207,7 +211,7 @@ def train_critic(
     cfg = TrainConfig(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
-        log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma,
+        log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)
@@ -215,7 +219,7 @@ def train_critic(
     if os.path.exists(ckpt_path) and not resume:
         raise UserInputError(f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory")
 
-    data = load_transitions(cfg.paths, cfg.gamma)
+    data = load_transitions(cfg.paths, cfg.gamma, cfg.reward)
     fingerprint = data.fingerprint()
     run = _Run(cfg, data)
     start = 0

@@ -165,6 +165,8 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint-every", type=int, default=1000)
     p.add_argument("--lagrange", action="store_true", help="tune the CQL weight with a Lagrange multiplier")
     p.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
+    p.add_argument("--reward", default="step",
+                   help="step: penalise each violating step; segment: every step of a violating 25-frame window")
     p.add_argument("--resume", action="store_true")
 
 
@@ -174,7 +176,7 @@ def _train_critic(args: argparse.Namespace) -> dict:
 
     return train_critic(args.data, args.out, steps=args.steps, batch_size=args.batch_size, seed=args.seed, resume=args.resume,
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
-                        with_lagrange=args.lagrange, gamma=args.gamma)
+                        with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward)
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
-from base_suites.errors import UserInputError
+from base_suites.errors import UserInputError, unknown_choice
 
 MODES = ("base", "always", "jiti")
 
@@ -25,7 +25,9 @@ class ChainConfig:
 
     `tasks` are indices applied to every suite (None: all ten). `critic_gamma` None keeps the
     annotation's discount; 0.9 and a CQL weight of 1 ranked held-out actions better than 0.99 and 5 on
-    libero_object/0 (AUROC 0.57 -> 0.64) and keep Q within its feasible range at these data sizes. `trust_radius`: JITI (and `always`) only pick among candidates within this L2
+    libero_object/0 (AUROC 0.57 -> 0.64) and keep Q within its feasible range at these data sizes.
+    `critic_reward` "segment" (penalise every step of a violating 25-frame window) ranked them better
+    than "step" (AUROC 0.72 -> 0.77 on 40 fresh held-out demos, 50 training demos, 2000 steps). `trust_radius`: JITI (and `always`) only pick among candidates within this L2
     distance of the base action; with a critic trained on a few dozen demos, unrestricted re-ranking
     chose far-off samples and success fell to 0%. `threshold` in units of the running std of Q (2.0):
     on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
@@ -39,6 +41,7 @@ class ChainConfig:
     critic_steps: int = 1500
     critic_gamma: float | None = 0.9
     critic_cql_weight: float = 1.0
+    critic_reward: str = "segment"
     policy_epochs: int = 40
     episodes: int = 6
     modes: tuple[str, ...] = ("base", "jiti")
@@ -57,6 +60,10 @@ class ChainConfig:
                 raise UserInputError(f"chain {name} must be >= 1, got {getattr(self, name)}")
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
+        from critics.data import REWARDS  # torch loads only when a chain runs
+
+        if self.critic_reward not in REWARDS:
+            raise unknown_choice("chain critic_reward", self.critic_reward, REWARDS)
 
     def jiti_settings(self, mode: str) -> dict[str, Any] | None:
         if mode == "base":
@@ -122,7 +129,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     if not os.path.exists(os.path.join(critic_dir, "critic.json")):
         say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
         train_critic(list(annotated.values()), critic_dir, steps=cfg.critic_steps, seed=cfg.seed, gamma=cfg.critic_gamma,
-                     cql_weight=cfg.critic_cql_weight, resume=True, progress=progress)
+                     cql_weight=cfg.critic_cql_weight, reward=cfg.critic_reward, resume=True, progress=progress)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
         train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, resume=True, progress=progress)

@@ -145,6 +145,26 @@ def test_critic_discount_can_differ_from_the_annotations(annotated):
         load_transitions([annotated], gamma=1.0)
 
 
+def test_segment_reward_penalises_every_step_of_a_violating_window(annotated):
+    """reward="segment": a one-step violation costs its whole 25-frame window (human labels live there too)."""
+    data = load_transitions([annotated], reward="segment")
+    with h5py.File(annotated, "r") as f:
+        demos = [f["data"][f"demo_{i}"] for i in range(6)]
+        windows = [np.logical_and.reduce([d["itc_segments"][c][()] for c in CRITERIA]) for d in demos]
+        lengths = [len(d["actions"]) for d in demos]
+        success = [d["rewards"][-1] > 0 for d in demos]
+    penalty = [w[np.arange(t) // SEGMENT_LENGTH].astype(np.float32) - 1.0 for w, t in zip(windows, lengths)]
+    reward = data.transitions["next", "reward"].squeeze(-1).numpy()
+    assert np.array_equal(reward, np.concatenate(penalty))
+    # the per-step form penalises fewer steps: only those that violate (random labels break ~4% of steps)
+    steps = load_transitions([annotated]).transitions["next", "reward"].squeeze(-1).numpy()
+    assert (steps < 0).sum() < (reward < 0).sum() and np.all(reward[steps < 0] < 0)
+    expected = np.concatenate([discounted_returns(p, 0.9) if ok else np.full(len(p), NO_FLOOR) for p, ok in zip(penalty, success)])
+    assert np.allclose(data.transitions["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
+    with pytest.raises(UserInputError, match="unknown reward 'window'"):
+        load_transitions([annotated], reward="window")
+
+
 def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):
     plain = write_annotated(tmp_path / "plain.hdf5", labelled=False)
     with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):

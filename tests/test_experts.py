@@ -6,23 +6,25 @@ import pytest
 import annotations.collect as collect
 from annotations import DemoFile
 from base_suites import make_env
-from base_suites.experts import ScriptedExpert
+from base_suites.experts import ScriptedExpert, articulated, plan_skills
+from itc import ITCWrapper
 
 pytestmark = pytest.mark.sim
 
 
 def _solve(suite, task, init=0, quality="clean", episode=0):
-    env = make_env(suite, task, seed=0)
+    """Run the expert for one episode under the ITC monitor; returns (success, expert, ITC verdict)."""
+    env = ITCWrapper(make_env(suite, task, seed=0))
     obs, _ = env.reset(options={"init_state": init})
-    expert = ScriptedExpert(env, quality=quality, seed=0)
-    expert.reset(env.metadata, episode=episode)
+    expert = ScriptedExpert(env.unwrapped, quality=quality, seed=0)
+    expert.reset(env.unwrapped.metadata, episode=episode)
     info = {"success": False}
-    for _ in range(env.max_steps):
+    for _ in range(env.unwrapped.max_steps):
         obs, _, terminated, truncated, info = env.step(expert(obs))
         if terminated or truncated:
             break
     env.close()
-    return info["success"], expert
+    return info["success"], expert, info.get("itc_verdict", {})
 
 
 @pytest.mark.parametrize("suite, task, family", [
@@ -31,12 +33,34 @@ def _solve(suite, task, init=0, quality="clean", episode=0):
     ("libero_spatial", 0, "pick and place (rim grasp of a bowl)"),
 ])
 def test_expert_solves_one_task_per_primitive_family(suite, task, family):
-    success, _ = _solve(suite, task)
+    success, _, verdict = _solve(suite, task)
     assert success, family
+    # clean means elegant too: the drawer pull once tipped the bowl and pressed the plate in front of it
+    assert verdict["violated"] == [], (family, verdict["events"][:3])
+
+
+def test_an_object_under_the_opened_drawer_is_moved_clear_first():
+    """libero_goal/3: the bowl stands where the top drawer will stick out; picking it from under the
+    open drawer is impossible top-down, so the plan moves it out of the drawer's way before opening."""
+    env = make_env("libero_goal", 3, seed=0)
+    env.reset(options={"init_state": 0})
+    view, drawer, bowl = env.sim, "wooden_cabinet_1_top_region", "akita_black_bowl_1"
+    plan = [pred for pred, _ in plan_skills(env.task.goal, view)]
+    assert plan == [("clear", bowl, drawer), ("open", drawer), ("in", bowl, drawer)]
+    lo, hi = articulated.opened_footprint(view, drawer)
+    spot = articulated.clear_spot(view, drawer, bowl)
+    moved = view.geom_points(bowl)[:, :2] - view.position(bowl)[:2] + spot
+    assert np.any((moved < lo) | (moved > hi), axis=1).all()  # every point of the bowl outside the drawer box
+    # the drawer of libero_goal/0 (nothing to put in it) plans no clearing
+    env0 = make_env("libero_goal", 0, seed=0)
+    env0.reset(options={"init_state": 0})
+    assert all(pred[0] != "clear" for pred, _ in plan_skills(env0.task.goal, env0.sim))
+    env.close()
+    env0.close()
 
 
 def test_drop_knob_releases_from_height_and_is_recorded():
-    success, expert = _solve("libero_object", 3, quality={"drop": 1.0})
+    success, expert, _ = _solve("libero_object", 3, quality={"drop": 1.0})
     assert expert.knobs["drop"] and "drop" in expert.events
 
 

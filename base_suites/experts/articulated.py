@@ -20,12 +20,14 @@ def container_of(view: SimView, target: str) -> str | None:
     return None
 
 
-def _hand_facing(direction: np.ndarray) -> np.ndarray:
-    """Rotation with the gripper pointing along `direction` (horizontal), fingers closing vertically."""
+def _hand_facing(direction: np.ndarray, roll: float = 0.0) -> np.ndarray:
+    """Rotation with the gripper pointing along `direction` (horizontal), fingers closing vertically,
+    or `roll` rad away from vertical about the pointing axis."""
     z = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
-    x = np.array([0.0, 0.0, 1.0])
-    y = np.cross(z, x)
-    return np.column_stack([x, y, z])
+    up = np.array([0.0, 0.0, 1.0])
+    side = np.cross(z, up)
+    x = np.cos(roll) * up + np.sin(roll) * side
+    return np.column_stack([x, np.cross(z, x), z])
 
 
 def _slide(view: SimView, target: str) -> tuple[str, np.ndarray, np.ndarray]:
@@ -41,6 +43,42 @@ def _slide(view: SimView, target: str) -> tuple[str, np.ndarray, np.ndarray]:
     front = pts[reach >= reach.max() - 0.012]
     handle = front.mean(axis=0)
     return joint, opening, handle
+
+
+def opened_footprint(view: SimView, target: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The xy box a drawer covers when pulled out to its end stop (None for doors and knobs)."""
+    joint = view.articulation_joints(target)[0]
+    if not _is_slide(view, joint):
+        return None
+    info = view.joint(joint)
+    _, opening, _ = _slide(view, target)
+    travel = float(np.ptp(info["range"])) - abs(info["qpos"])
+    entity = view.region(target).parent if target in view.regions else target
+    pts = view.geom_points(entity, body=info["body"])[:, :2] + opening[:2] * travel
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def under_opened(view: SimView, target: str, obj: str, margin: float = 0.03) -> bool:
+    """Would `obj` stand under the drawer once it is open? Then the hand cannot reach it from above."""
+    box = opened_footprint(view, target)
+    if box is None:
+        return False
+    pts = view.geom_points(obj)[:, :2]
+    lo, hi = box[0] - margin, box[1] + margin
+    return bool(np.all(pts.max(axis=0) >= lo) and np.all(pts.min(axis=0) <= hi))
+
+
+def clear_spot(view: SimView, target: str, obj: str, margin: float = 0.04) -> np.ndarray:
+    """Where to set `obj` down so that it stands clear of the opened drawer: straight out along the
+    opening direction, just past the drawer's front edge."""
+    _, opening, _ = _slide(view, target)
+    lo, hi = opened_footprint(view, target)
+    corners = np.array([[x, y] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])])
+    front = float((corners @ opening[:2]).max())
+    pts = view.geom_points(obj)[:, :2]
+    centre = view.position(obj)[:2]
+    behind = float(((pts - centre) @ opening[:2]).min())  # the object's extent back towards the drawer (< 0)
+    return centre + opening[:2] * (front - centre @ opening[:2] - behind + margin)
 
 
 def open_(ctx: SkillContext, target: str) -> Actions:
@@ -65,19 +103,29 @@ def _is_slide(view: SimView, joint: str) -> bool:
     return view.joint_type(joint) == "slide"
 
 
+# The hand housing spans ~20 cm along the fingers' closing direction: closing vertically on a handle, its
+# lower edge sits ~10 cm below the handle and scrapes whatever stands in front of the drawer (a plate,
+# a bowl). Rolled this far (46 deg) from vertical, it sits ~3 cm higher and the fingers still pinch the bar.
+HANDLE_ROLL = 0.8
+# Height above the handle at which the hand travels to the drawer before coming down in front of it.
+APPROACH_CLEARANCE = 0.12
+
+
 def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
     view = ctx.view
     _, opening, handle = _slide(view, target)
-    rot = _hand_facing(-opening)
+    rot = _hand_facing(-opening, HANDLE_ROLL)
     standoff = handle + opening * 0.10
-    yield from ctx.goto(np.array([*view.eef_position()[:2], max(view.eef_position()[2], handle[2] + 0.05)]), rot, OPEN, tol=0.03, rot_tol=0.2, max_steps=60)
+    travel = max(view.eef_position()[2], handle[2] + APPROACH_CLEARANCE)
+    yield from ctx.goto(np.array([*standoff[:2], travel]), rot, OPEN, tol=0.02, rot_tol=0.2, max_steps=100)
     yield from ctx.goto(standoff, rot, OPEN, tol=0.01, max_steps=120)
     yield from ctx.goto(handle + opening * 0.005, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
     yield from ctx.hold(CLOSE, 10, rot)
+    is_open = lambda: view.predicate(("open", target))  # noqa: E731
     for _ in range(3):
         goal = view.eef_position() + opening * 0.20
-        yield from ctx.goto(goal, rot, CLOSE, tol=0.015, max_steps=80, speed=0.5)
-        if view.predicate(("open", target)):
+        yield from ctx.goto(goal, rot, CLOSE, tol=0.015, max_steps=80, speed=0.5, until=is_open)
+        if is_open():
             break
     yield from ctx.hold(OPEN, 8, rot)
     yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
@@ -85,11 +133,17 @@ def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
     return view.predicate(("open", target))
 
 
+RETREAT = 0.08  # m the hand backs off towards the robot before turning back to pointing down
+
+
 def _point_down(ctx: SkillContext) -> Actions:
-    """Rise and turn the horizontal hand back to pointing down, in place: done on the way to the next
-    pick, the quarter turn drags the hand off course and into the cabinet."""
+    """Rise, back off towards the robot and turn the horizontal hand back to pointing down: done on the
+    way to the next pick, the quarter turn drags the hand off course and into the cabinet; done at full
+    reach (a drawer pulled out far), it stretches the elbow straight, where OSC cannot bend it back."""
     view = ctx.view
-    yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.06]), view.eef_rotation(), OPEN, tol=0.02, max_steps=30)
+    toward_base = view.robot_base_position()[:2] - view.eef_position()[:2]
+    back = np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
+    yield from ctx.goto(view.eef_position() + back, view.eef_rotation(), OPEN, tol=0.02, max_steps=30)
     yield from ctx.goto(view.eef_position(), nearest_grasp_rotation(0.0, view.eef_rotation(), view.arm_joints()[6]), OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
 
 
@@ -100,10 +154,11 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
     start = handle + opening * 0.08
     yield from ctx.goto(np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.08)]), rot, CLOSE, tol=0.02, rot_tol=0.2, max_steps=100)
     yield from ctx.goto(start, rot, CLOSE, tol=0.01, max_steps=80)
+    is_closed = lambda: view.predicate(("close", target))  # noqa: E731
     for _ in range(3):
         goal = view.eef_position() - opening * 0.25
-        yield from ctx.goto(goal, rot, CLOSE, tol=0.02, max_steps=80, speed=0.6)
-        if view.predicate(("close", target)):
+        yield from ctx.goto(goal, rot, CLOSE, tol=0.02, max_steps=80, speed=0.6, until=is_closed)
+        if is_closed():
             break
     yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
     yield from _point_down(ctx)

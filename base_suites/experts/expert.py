@@ -17,7 +17,7 @@ from base_suites.experts import articulated, skills
 from base_suites.experts.control import OPEN
 from base_suites.experts.skills import SkillContext
 
-EXPERT_VERSION = "scripted-1"
+EXPERT_VERSION = "scripted-2"
 KNOBS = ("collide", "drop", "misplace", "tilt", "wrong_order", "jerky", "regrasp")
 # "mixed": every knob possible, most episodes still clean in all but one or two respects.
 MIXED_RATES = {"collide": 0.2, "drop": 0.2, "misplace": 0.15, "tilt": 0.2, "wrong_order": 0.15, "jerky": 0.15, "regrasp": 0.15}
@@ -66,7 +66,8 @@ Skill = Callable[[SkillContext], skills.Actions]
 def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str, ...], Skill]]:
     """Order the goal's predicates into (predicate, skill) steps: switch on first, open containers
     before filling them, close containers after filling them. Opening a container for an `in` goal is
-    a step of its own, keyed by the predicate it makes true."""
+    a step of its own, keyed by the predicate it makes true; an object that would stand under the opened
+    drawer is first moved clear of it (step ("clear", object, drawer))."""
     steps: list[tuple[int, tuple[str, ...], Skill]] = []
     opened_for = set()
     targets = [p[2] for p in goal if p[0] in ("on", "in")]
@@ -76,6 +77,8 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
             obj, target = args
             container = articulated.container_of(view, target)
             if kind == "in" and container is not None and not view.predicate(("open", target)) and target not in opened_for:
+                if articulated.under_opened(view, target, obj):
+                    steps.append((1, ("clear", obj, target), lambda c, o=obj, t=target: _clear_drawer_path(c, o, t)))
                 steps.append((1, ("open", target), lambda c, t=target: articulated.open_(c, t)))
                 opened_for.add(target)
             shared = targets.count(target) > 1
@@ -90,6 +93,14 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
             raise UserInputError(f"goal predicate {kind!r} has no expert skill")
     steps.sort(key=lambda s: s[0])
     return [(pred, fn) for _, pred, fn in steps]
+
+
+def _clear_drawer_path(ctx: SkillContext, obj: str, drawer: str) -> skills.Actions:
+    """Move `obj` out from under where `drawer` will stand once opened, so it can be picked afterwards."""
+    ok = yield from skills.pick(ctx, obj)
+    if not ok:
+        return False
+    return (yield from skills.place(ctx, obj, articulated.clear_spot(ctx.view, drawer, obj)))
 
 
 def _pick_place(ctx: SkillContext, obj: str, target: str, shared: bool = False) -> skills.Actions:

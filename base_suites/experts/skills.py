@@ -6,7 +6,7 @@ jerky, regrasp) are applied inside the skills where the behaviour belongs.
 """
 from __future__ import annotations
 
-from collections.abc import Generator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -28,11 +28,15 @@ class SkillContext:
     servo: Servo = field(default_factory=Servo)
     events: list[str] = field(default_factory=list)
 
-    def goto(self, pos, rot, grip: float, tol: float = 0.008, rot_tol: float = 0.06, max_steps: int = 120, speed: float = 1.0) -> Actions:
-        """Servo the grip point to `pos` with orientation `rot`; True once within tolerance."""
+    def goto(self, pos, rot, grip: float, tol: float = 0.008, rot_tol: float = 0.06, max_steps: int = 120, speed: float = 1.0,
+             until: Callable[[], bool] | None = None) -> Actions:
+        """Servo the grip point to `pos` with orientation `rot`; True once within tolerance, or as soon as
+        `until()` holds (a drawer pulled open need not reach a point past its end stop)."""
         self.servo.reset_integral()
         pos = np.asarray(pos, dtype=float)
         for _ in range(max_steps):
+            if until is not None and until():
+                return True
             pos_err = pos - self.view.eef_position()
             rot_err = rotation_error(rot, self.view.eef_rotation())
             if np.linalg.norm(pos_err) < tol and np.linalg.norm(rot_err) < rot_tol:
