@@ -2,7 +2,8 @@
 
 - Robot links and gripper may press on what the task moves, its targets, what those stand on, the
   table/floor and the object in hand; anything else pressed with more than `contact_force` (total
-  normal force of the pair) is a collision, at every step it lasts.
+  normal force of the pair), or an object touched while it moves faster than `push_speed` (a sliding
+  push, whose normal force is near zero at the samples), is a collision, at every step it lasts.
 - The held object may press on its target, the table/floor, whatever it touched when grasped (its
   support, a stacked object) and the spec's supports; pressing on anything else is a collision.
 - A released object may fall at most `drop_height` from where it last touched the hand to where it
@@ -61,20 +62,25 @@ class CollisionFree(Constraint):
 
     def _pressing(self, ctx: StepContext, held: str | None) -> list[str]:
         reasons = []
-        limit = self.params.contact_force
         for pair, force in ctx.pair_forces.items():
-            if force <= limit:
-                continue
             robot_side, others = pair & ROBOT_PARTS, pair - ROBOT_PARTS
             if robot_side and others:
                 (other,) = others
                 if other not in self._robot_may_touch and other != held:
-                    reasons.append(f"{'/'.join(sorted(robot_side))} pressed {other} with {force:.1f} N (limit {limit:.1f} N)")
+                    reasons += self._touch_reason("/".join(sorted(robot_side)), other, force, ctx)
             elif held is not None and held in pair and not robot_side:
                 (other,) = pair - {held}
                 if other not in self._held_may_touch:
-                    reasons.append(f"held {held} pressed {other} with {force:.1f} N (limit {limit:.1f} N)")
+                    reasons += self._touch_reason(f"held {held}", other, force, ctx)
         return reasons
+
+    def _touch_reason(self, toucher: str, other: str, force: float, ctx: StepContext) -> list[str]:
+        """Why touching `other` (which should not be touched) is a collision: pressed too hard, or pushed."""
+        if force > self.params.contact_force:
+            return [f"{toucher} pressed {other} with {force:.1f} N (limit {self.params.contact_force:.1f} N)"]
+        if other in self._objects and ctx.speed(other) > self.params.push_speed:
+            return [f"{toucher} pushed {other} at {ctx.speed(other):.2f} m/s (limit {self.params.push_speed:.2f} m/s)"]
+        return []
 
     def _drops(self, ctx: StepContext) -> list[str]:
         reasons = []

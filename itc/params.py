@@ -63,6 +63,10 @@ class ITCParams:
     contact_force: float = 5.0
     """Total normal force (N) between the robot (or the held object) and an entity it should not touch.
     Measured: a finger brushing a bottle 1 N; pushing a 30 g box at 0.2 m/s 15-20 N; a grasp 2-6 N."""
+    push_speed: float = 0.1
+    """An object the robot (or the held object) should not touch may move at most this fast (m/s) while
+    touching it. A sliding push barely loads the contact at the 20 Hz samples: a cream cheese box pushed
+    along the table at 0.3 m/s by a finger showed 0.01 N, under any force threshold."""
     drop_height: float = 0.05
     """A released object may fall at most this far (m) before it touches something."""
     impact_speed: float = 1.0

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from base_suites import get_task, make_env
-from itc import CRITERIA, ITCMonitor, ITCWrapper, derive_spec
+from itc import CRITERIA, ITCMonitor, ITCParams, ITCWrapper, derive_spec
 
 pytestmark = pytest.mark.sim
 
@@ -142,6 +142,26 @@ def test_pushing_a_distractor_violates_sequence_and_collision(env):
     run.move(cheese + [0.06, 0, 0.02], CLOSE, steps=30)
     assert any(r.startswith("disturbed cream_cheese_1: moved") for r in run.reasons("sequence"))
     assert any(r.startswith("gripper pressed cream_cheese_1 with") for r in run.reasons("collision"))
+
+
+def test_a_sliding_push_violates_collision_whatever_the_contact_force(env):
+    """A finger sliding a light box along the table loads the contact only now and then; the moving
+    object in contact with the robot is what gives the push away (`push_speed`)."""
+    def push(params: ITCParams) -> Scripted:
+        env.reset(options={"init_state": 0})
+        monitor = ITCMonitor(env, spec=derive_spec(get_task(SCENE, BOWL_ONTO_PLATE)), params=params)
+        monitor.reset()
+        run = Scripted(env, monitor)
+        cheese = env.sim.position("cream_cheese_1")
+        run.move(cheese + [-0.08, 0, 0.10], CLOSE)
+        run.move(cheese + [-0.08, 0, 0.02], CLOSE, steps=40)
+        run.move(cheese + [0.06, 0, 0.02], CLOSE, steps=30)
+        return run
+
+    no_force_limit = push(ITCParams(contact_force=1e3))
+    assert any(r.startswith("gripper pushed cream_cheese_1 at") for r in no_force_limit.reasons("collision"))
+    neither = push(ITCParams(contact_force=1e3, push_speed=1e3))
+    assert neither.reasons("collision") == []
 
 
 # ---- alignment --------------------------------------------------------------------------------
