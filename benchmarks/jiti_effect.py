@@ -51,7 +51,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task and mode")
     parser.add_argument("--critic-steps", type=int, default=20000)
     parser.add_argument("--critic-gamma", type=float, default=0.9)
-    parser.add_argument("--critic-cql-weight", type=float, default=1.0)
+    parser.add_argument("--critic-cql-weight", type=float, default=0.2)
     parser.add_argument("--critic-reward", default="segment", help="step or segment (see critics.load_transitions)")
     parser.add_argument("--policy-epochs", type=int, default=50)
     parser.add_argument("--trust-radius", type=float, default=0.3)
