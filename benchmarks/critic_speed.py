@@ -16,15 +16,9 @@ Last line: one JSON object with the figures.
 """
 from __future__ import annotations
 
-import os
-
-# "one thread" holds for NumPy's BLAS too (Critic.q runs in NumPy): fixed before numpy is imported
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
-
-import argparse  # noqa: E402
-import json  # noqa: E402
-import statistics  # noqa: E402
+import argparse
+import json
+import statistics
 import time
 from collections.abc import Callable
 

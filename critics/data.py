@@ -97,29 +97,30 @@ def _annotation_gamma(f: DemoFile) -> float:
     return float(annotation["gamma"])
 
 
-def _segment_length(f: DemoFile) -> int:
+def segment_length(f: DemoFile) -> int:
+    """The window length the file's segment labels were computed with."""
     annotation = f.attrs.get("annotation")
     if not isinstance(annotation, dict) or "segment_length" not in annotation:
         raise UserInputError(f"{f.path}: data.annotation has no 'segment_length' (expected the JSON written by `elegant annotate`)")
     return int(annotation["segment_length"])
 
 
-def _window_kept(demo, length: int, where: str) -> np.ndarray:
-    """Per step, whether the step's window kept every criterion (human labels included: they live there)."""
+def step_window_labels(demo, length: int, where: str) -> dict[str, np.ndarray]:
+    """Per criterion, per step: did the step's window keep it (human labels included: they live there)."""
     windows = np.arange(demo.num_samples) // length
     expected = int(windows[-1]) + 1
-    kept = np.ones(demo.num_samples, dtype=bool)
+    labels = {}
     for c in CRITERIA:
         segments = demo.itc_segments[c]
         if segments.shape != (expected,):
             raise UserInputError(f"{where}/itc_segments/{c} has shape {segments.shape}, expected ({expected},) windows of {length} steps")
-        kept &= segments[windows]
-    return kept
+        labels[c] = segments[windows]
+    return labels
 
 
 def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
     demos = []
-    length = _segment_length(f)
+    length = segment_length(f)
     for demo in f:
         where = f"{f.path}: data/{demo.name}"
         if demo.task_key not in layouts:
@@ -140,7 +141,7 @@ def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
             path=f.path, name=demo.name, task=demo.task_key,
             obs=demo.obs, next_obs=demo.next_obs, actions=np.asarray(demo.actions, dtype=np.float32),
             reward=np.asarray(demo.elegance_reward, dtype=np.float32), mc_return=np.asarray(demo.mc_return, dtype=np.float32),
-            window_kept=_window_kept(demo, length, where), success=bool(demo.rewards[-1] > 0),
+            window_kept=np.logical_and.reduce(list(step_window_labels(demo, length, where).values())), success=bool(demo.rewards[-1] > 0),
         ))
     return demos
 

@@ -25,6 +25,7 @@ from annotations import CRITERIA, DemoFile, task_key
 from base_suites.errors import UserInputError, unknown_choice
 from base_suites.seeds import derive_seed
 from critics.artifact import Critic, load
+from critics.data import segment_length, step_window_labels
 
 if TYPE_CHECKING:  # the simulator loads only when continuation pairs are rolled out
     from base_suites.env import LiberoEnv
@@ -45,18 +46,11 @@ def auroc(positive: np.ndarray, negative: np.ndarray) -> float | None:
     return float(u / (len(positive) * len(negative)))
 
 
-def _segment_length(f: DemoFile) -> int:
-    annotation = f.attrs.get("annotation")
-    if not isinstance(annotation, dict) or "segment_length" not in annotation:
-        raise UserInputError(f"{f.path}: data.annotation has no 'segment_length'")
-    return int(annotation["segment_length"])
-
-
 def _score_file(critic: Critic, path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Q of every dataset action in the file, and per criterion whether its step's segment kept it."""
     q, kept = [], {c: [] for c in CRITERIA}
     with DemoFile(path, require_labels=True) as f:
-        length = _segment_length(f)
+        length = segment_length(f)
         layouts = f.state_layouts
         bindings = {}
         for demo in f:
@@ -67,9 +61,8 @@ def _score_file(critic: Critic, path: str) -> tuple[np.ndarray, dict[str, np.nda
                 meta = {"suite": demo.attrs["suite"], "task_index": demo.attrs["task_index"], "state_layout": layouts[key]}
                 bindings[key] = critic._binding_for(meta)
             q.append(critic._score(bindings[key], demo.obs, np.asarray(demo.actions)[:, None, :])[:, 0])
-            segment = np.arange(demo.num_samples) // length
-            for c in CRITERIA:
-                kept[c].append(demo.itc_segments[c][segment])
+            for c, labels in step_window_labels(demo, length, f"{path}: data/{demo.name}").items():
+                kept[c].append(labels)
     return np.concatenate(q), {c: np.concatenate(v) for c, v in kept.items()}
 
 

@@ -28,9 +28,10 @@ class ChainConfig:
     libero_object/0 (AUROC 0.57 -> 0.64) and keep Q within its feasible range at these data sizes.
     `critic_reward` "segment" (penalise every step of a violating 25-frame window) ranked them better
     than "step" (AUROC 0.72 -> 0.77 on 40 fresh held-out demos, 50 training demos, 2000 steps), and with
-    it a CQL weight of 0.2 better than 1 (4000 steps: AUROC 0.79 -> 0.86-0.87 over two seeds). `trust_radius`: JITI (and `always`) only pick among candidates within this L2
-    distance of the base action; with a critic trained on a few dozen demos, unrestricted re-ranking
-    chose far-off samples and success fell to 0%. `threshold` in units of the running std of Q (2.0):
+    it a CQL weight of 0.2 better than 1 (4000 steps: AUROC 0.79 -> 0.86-0.87 over two seeds).
+    `trust_radius`: JITI (and `always`) only pick among candidates within this L2 distance of the base
+    action; with a critic trained on a few dozen demos, unrestricted re-ranking chose far-off samples and
+    success fell to 0%. `threshold` in units of the running std of Q (2.0):
     on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
     suites' horizons.
     """

@@ -20,6 +20,11 @@ def container_of(view: SimView, target: str) -> str | None:
     return None
 
 
+def _fixture(view: SimView, target: str) -> str:
+    """The articulated fixture a target names: a drawer region's cabinet, or the target itself."""
+    return view.region(target).parent if target in view.regions else target
+
+
 def _hand_facing(direction: np.ndarray, roll: float = 0.0) -> np.ndarray:
     """Rotation with the gripper pointing along `direction` (horizontal), fingers closing vertically,
     or `roll` rad away from vertical about the pointing axis."""
@@ -37,7 +42,7 @@ def _slide(view: SimView, target: str) -> tuple[str, np.ndarray, np.ndarray]:
     opening = -info["axis"]  # LIBERO drawers count as open below a qpos threshold
     opening[2] = 0.0
     opening /= np.linalg.norm(opening)
-    entity = view.region(target).parent if target in view.regions else target
+    entity = _fixture(view, target)
     pts = view.geom_points(entity, body=info["body"])
     reach = pts @ opening
     front = pts[reach >= reach.max() - 0.012]
@@ -53,7 +58,7 @@ def opened_footprint(view: SimView, target: str) -> tuple[np.ndarray, np.ndarray
     info = view.joint(joint)
     _, opening, _ = _slide(view, target)
     travel = float(np.ptp(info["range"])) - abs(info["qpos"])
-    entity = view.region(target).parent if target in view.regions else target
+    entity = _fixture(view, target)
     pts = view.geom_points(entity, body=info["body"])[:, :2] + opening[:2] * travel
     return pts.min(axis=0), pts.max(axis=0)
 
@@ -170,7 +175,7 @@ def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
     view = ctx.view
     joint = view.articulation_joints(target)[0]
     info = view.joint(joint)
-    entity = view.region(target).parent if target in view.regions else target
+    entity = _fixture(view, target)
     pts = view.geom_points(entity, body=info["body"])
     anchor, axis = info["anchor"], info["axis"]
     radial = pts - anchor
