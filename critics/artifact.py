@@ -39,18 +39,19 @@ def atomic_torch_save(path: str, obj: Any) -> None:
 
 @dataclass(frozen=True)
 class _Binding:
-    """One task's observation encoding folded into each critic's first layer.
+    """One task's observation encoding folded into the critics' first layer.
 
     The normalised encoding of a state x of the task is t + P(x / std), where t (the encoding of a zero
     state: padding, task one-hot, -mean/std) is fixed and P pads into the first `state_size` columns.
     So the first layer's state part is bias + t @ W + x @ (W[:state_size] / std): `q` then needs no
-    encoding or normalisation work beyond one small matmul.
+    encoding or normalisation work beyond one small matmul. Both critics' columns sit side by side
+    (critic c in columns c*H:(c+1)*H), so that matmul serves the pair.
     """
 
     task: str
     state_size: int
-    state_weight: list[np.ndarray]  # per critic (state_size, H)
-    state_bias: list[np.ndarray]  # per critic (H,)
+    state_weight: np.ndarray  # (state_size, C * H)
+    state_bias: np.ndarray  # (C * H,)
 
 
 def _blas_operand(tensor: torch.Tensor) -> np.ndarray:
@@ -59,27 +60,69 @@ def _blas_operand(tensor: torch.Tensor) -> np.ndarray:
     return np.asfortranarray(tensor.detach().numpy().astype(np.float32))
 
 
+def _side_by_side(stacked: torch.Tensor) -> torch.Tensor:
+    """(C, rows, H) per-critic weights -> (rows, C * H): critic c's columns at c*H:(c+1)*H."""
+    c, rows, width = stacked.shape
+    return stacked.permute(1, 0, 2).reshape(rows, c * width)
+
+
 @dataclass(frozen=True)
-class _OneCritic:
-    """One of the twin Q networks' layers after the state part, as NumPy arrays."""
+class _TwinLayers:
+    """The twin Q networks' layers after the state part, as NumPy arrays.
 
-    action_weight: np.ndarray  # (A, H)
-    hidden: list[tuple[np.ndarray, np.ndarray]]  # (weight (H, H'), bias (H',)) per hidden layer after the first
-    last_row: np.ndarray  # (H,)
-    last_bias: np.float32
+    The first layer's action part is one matmul for both critics (columns side by side, as in
+    `_Binding`); the hidden layers are per critic, since a block-diagonal matmul would double their FLOPs.
+    """
 
-    def q(self, per_state: np.ndarray, scaled_actions: np.ndarray) -> np.ndarray:
-        """Q of B states x K actions: per_state (B, H) is the first layer's state part with its bias,
-        scaled_actions (B, K, A). Returns (B * K,)."""
+    width: int  # H, each critic's first hidden width
+    action_weight: np.ndarray  # (A, C * H)
+    hidden: list[list[tuple[np.ndarray, np.ndarray]]]  # per critic: (weight (H, H'), bias (H',)) per later layer
+    last_rows: list[np.ndarray]  # per critic (H_last,)
+    last_biases: list[np.float32]
+
+    def q(self, first_layer: np.ndarray, scaled_actions: np.ndarray) -> np.ndarray:
+        """min over critics of Q for B states x K actions: first_layer (B, C * H) is the state part with
+        its bias, scaled_actions (B, K, A) in [-1, 1]. Returns (B * K,)."""
         batch, k, a = scaled_actions.shape
         h = (scaled_actions.reshape(batch * k, a) @ self.action_weight).reshape(batch, k, -1)
-        h += per_state[:, None, :]
+        h += first_layer[:, None, :]
         h = np.maximum(h, 0.0, out=h).reshape(batch * k, -1)
-        for weight, bias in self.hidden:
-            h = h @ weight
-            h += bias
-            np.maximum(h, 0.0, out=h)
-        return h @ self.last_row + self.last_bias
+        q = None
+        for c, layers in enumerate(self.hidden):
+            h_c = h[:, c * self.width : (c + 1) * self.width]
+            for weight, bias in layers:
+                h_c = h_c @ weight
+                h_c += bias
+                np.maximum(h_c, 0.0, out=h_c)
+            q_c = h_c @ self.last_rows[c]
+            q_c += self.last_biases[c]
+            q = q_c if q is None else np.minimum(q, q_c, out=q)
+        return q
+
+
+class _OneBlasThread:
+    """Context: NumPy's BLAS on one thread inside, its previous thread counts restored on exit.
+
+    With the CPU busy (the simulator, other jobs), OpenBLAS's worker threads wait for cores and a
+    16-action decision took 5.8 ms instead of 0.5 ms (benchmarks/jiti_overhead.py). This talks to the
+    BLAS libraries threadpoolctl found once, at construction, and costs ~4 us per use, against ~40 us for
+    `threadpool_limits`, which looks the libraries up again on every entry.
+    """
+
+    def __init__(self) -> None:
+        self._libraries = ThreadpoolController().select(user_api="blas").lib_controllers
+        self._previous: list[int] = []
+
+    def __enter__(self) -> None:
+        self._previous = [library.get_num_threads() for library in self._libraries]
+        for library, threads in zip(self._libraries, self._previous):
+            if threads != 1:
+                library.set_num_threads(1)
+
+    def __exit__(self, *exc: object) -> None:
+        for library, threads in zip(self._libraries, self._previous):
+            if threads != 1:
+                library.set_num_threads(threads)
 
 
 class Critic:
@@ -107,19 +150,16 @@ class Critic:
         self._center = normalization.action_center.astype(np.float32)
         self._inv_half = (1.0 / normalization.action_half_range).astype(np.float32)
         weights, biases = list(network.weights), list(network.biases)
-        self._critics = [
-            _OneCritic(
-                _blas_operand(network.action_weight[c]),
-                [(_blas_operand(w[c]), b[c, 0].detach().numpy().astype(np.float32)) for w, b in zip(weights[:-1], biases[:-1])],
-                weights[-1][c, :, 0].detach().numpy().astype(np.float32),
-                np.float32(biases[-1][c, 0, 0].item()),
-            )
-            for c in range(network.n_critics)
-        ]
+        critics = range(network.n_critics)
+        self._layers = _TwinLayers(
+            width=network.action_weight.shape[-1],
+            action_weight=_blas_operand(_side_by_side(network.action_weight)),
+            hidden=[[(_blas_operand(w[c]), b[c, 0].detach().numpy().astype(np.float32)) for w, b in zip(weights[:-1], biases[:-1])] for c in critics],
+            last_rows=[weights[-1][c, :, 0].detach().numpy().astype(np.float32) for c in critics],
+            last_biases=[np.float32(biases[-1][c, 0, 0].item()) for c in critics],
+        )
         self._binding: _Binding | None = None
-        # One BLAS thread per call: with the CPU busy (the simulator, other jobs), OpenBLAS's worker threads
-        # wait for cores and a 16-action decision took 5.8 ms instead of 0.5 ms (benchmarks/jiti_overhead.py).
-        self._blas = ThreadpoolController().select(user_api="blas")
+        self._one_blas_thread = _OneBlasThread()
 
     @property
     def tasks(self) -> list[str]:
@@ -132,7 +172,7 @@ class Critic:
         obs_weight = self.network.obs_weight.detach()  # (C, D, H)
         bias = self.network.first_bias.detach()[:, 0, :] + torch.einsum("d,cdh->ch", zero_state, obs_weight)
         weight = obs_weight[:, :size, :] * torch.from_numpy(1.0 / self.normalization.obs_std[:size])[None, :, None]
-        return _Binding(key, size, [_blas_operand(w) for w in weight], [b.numpy().astype(np.float32) for b in bias])
+        return _Binding(key, size, _blas_operand(_side_by_side(weight)), bias.reshape(-1).numpy().astype(np.float32))
 
     def bind(self, metadata: Mapping[str, Any]) -> "Critic":
         """Score states of the env described by `metadata` (suite, task_index, state_layout) from now on.
@@ -159,13 +199,12 @@ class Critic:
                 f"{self.path}: Critic.q expects state ({b.state_size},) with actions (N, A) or states (B, {b.state_size}) "
                 f"with actions (B, N, A) for task {b.task}; got {state.shape} and {actions.shape}"
             )
-        scaled = np.clip((actions - self._center) * self._inv_half, -1.0, 1.0)
-        q = None
-        with self._blas.limit(limits=1):
-            for critic, weight, bias in zip(self._critics, b.state_weight, b.state_bias):
-                q_c = critic.q(state @ weight + bias, scaled)
-                q = q_c if q is None else np.minimum(q, q_c, out=q)
-        q = q.reshape(actions.shape[:2])
+        scaled = (actions - self._center) * self._inv_half
+        np.minimum(np.maximum(scaled, -1.0, out=scaled), 1.0, out=scaled)  # np.clip costs 3x as much here
+        with self._one_blas_thread:
+            first_layer = state @ b.state_weight
+            first_layer += b.state_bias
+            q = self._layers.q(first_layer, scaled).reshape(actions.shape[:2])
         return q[0] if single else q
 
 
