@@ -64,6 +64,27 @@ def test_drop_knob_releases_from_height_and_is_recorded():
     assert expert.knobs["drop"] and "drop" in expert.events
 
 
+def test_misplace_is_recorded_when_the_object_is_over_the_wrong_spot_not_when_planned():
+    """An episode that times out before the release (after a knock or a long regrasp) misplaced nothing,
+    so the label benchmark must not count it: the event comes once the object hangs over the wrong spot
+    (near the target, off its centre), not when the offset is drawn at the pick-up spot."""
+    env = make_env("libero_object", 3, seed=0)
+    obs, _ = env.reset(options={"init_state": 0})
+    (_, obj, region), = env.task.goal
+    expert = ScriptedExpert(env, quality={"misplace": 1.0}, seed=0)
+    expert.reset(env.metadata, episode=0)
+    offset_when_recorded = None
+    for _ in range(env.max_steps):
+        obs, _, terminated, truncated, info = env.step(expert(obs))
+        if offset_when_recorded is None and "misplace" in expert.events:
+            offset_when_recorded = float(np.linalg.norm(env.sim.position(obj)[:2] - env.sim.region(region).position[:2]))
+        if terminated or truncated:
+            break
+    env.close()
+    assert offset_when_recorded is not None
+    assert 0.04 < offset_when_recorded < 0.10  # the knob's 5-8 cm, over the basket rather than at the pick-up spot
+
+
 def _collect(tmp_path, name, **kw):
     out = str(tmp_path / name)
     summary = collect.collect_demos("libero_object", [0], 2, out, quality={"tilt": 0.5}, seed=4, progress=False, **kw)

@@ -150,7 +150,6 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     if "misplace" in ctx.knobs and isinstance(target, str):
         angle = ctx.rng.uniform(0, 2 * np.pi)
         goal_xy = goal_xy + ctx.rng.uniform(0.05, 0.08) * np.array([np.cos(angle), np.sin(angle)])
-        ctx.events.append("misplace")
     z_carry = carry_height(view, obj, goal_xy)
     carry_rot = upright
     if "tilt" in ctx.knobs and isinstance(target, str):
@@ -165,6 +164,10 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
             break
     if carry_rot is not upright:
         yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
+    if "misplace" in ctx.knobs and isinstance(target, str):
+        # Recorded here, over the wrong spot, not when the offset is drawn: an episode that times out on
+        # the way (after a knock, a long regrasp) never misplaced anything.
+        ctx.events.append("misplace")
     if "drop" in ctx.knobs and isinstance(target, str):
         ctx.events.append("drop")
         yield from ctx.hold(OPEN, 10)
