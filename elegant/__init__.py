@@ -21,6 +21,7 @@ _LAZY = {
     "train_policy": "elegant.policies",
     "evaluate": "elegant.evaluation",
     "episode_start": "elegant.evaluation",
+    "intervention_headroom": "elegant.headroom",
     "summarize": "elegant.metrics",
     "lifelong_metrics": "elegant.metrics",
     "robustness_metrics": "elegant.metrics",

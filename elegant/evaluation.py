@@ -60,7 +60,8 @@ def _describe(obj: Any) -> str | None:
     return f"{named.__module__}.{named.__qualname__}"
 
 
-def _load_policy(policy: Any) -> Any:
+def open_policy(policy: Any) -> Any:
+    """A policy directory loaded (`elegant.load_policy`), or a callable passed through."""
     if isinstance(policy, (str, os.PathLike)):
         from elegant.policies import load_policy
 
@@ -70,7 +71,8 @@ def _load_policy(policy: Any) -> Any:
     return policy
 
 
-def _load_critic(critic: Any) -> Any:
+def open_critic(critic: Any) -> Any:
+    """A critic directory loaded (`critics.load`), or a critic object (or None) passed through."""
     if isinstance(critic, (str, os.PathLike)):
         import critics
 
@@ -192,7 +194,7 @@ def evaluate(
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
     specs = [get_task(suite, t) for t in tasks] if tasks is not None else list_tasks(suite)
     indices = list(dict.fromkeys(spec.index for spec in specs))
-    agent = JITI(_load_policy(policy), _load_critic(critic), mode=mode, seed=seed, **settings)
+    agent = JITI(open_policy(policy), open_critic(critic), mode=mode, seed=seed, **settings)
     config = {
         "suite": suite,
         "tasks": indices,

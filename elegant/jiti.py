@@ -80,6 +80,24 @@ class Decision:
     action_change: float | None = None
 
 
+def draw_candidates(policy: Any, obs: Observation, action: np.ndarray, n: int) -> np.ndarray:
+    """n candidate actions for this step from `policy.sample` (an adapted `Policy`), clipped to the action
+    bounds, with candidate 0 set to the base action `action` so it is always among them."""
+    drawn = np.asarray(policy.sample(obs, n), dtype=np.float64)
+    if drawn.shape != (n, ACTION_DIM):
+        raise ValueError(f"{type(policy).__name__}.sample(obs, {n}) returned shape {drawn.shape}, expected ({n}, {ACTION_DIM})")
+    candidates = np.clip(drawn, ACTION_LOW, ACTION_HIGH)
+    candidates[0] = action
+    return candidates
+
+
+def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: float | None) -> int:
+    """Index of the best-scored candidate whose `distance` (L2 from candidate 0, the base action) is within
+    `trust_radius`; the first maximum, so the base action wins ties and JITI never overrides without a reason."""
+    eligible = scores if trust_radius is None else np.where(distance > trust_radius, -np.inf, scores)
+    return int(np.argmax(eligible))
+
+
 def _state_of(obs: Observation) -> np.ndarray:
     if "state" not in obs:
         raise UserInputError("JITI's critic needs the low-dimensional 'state' observation: make the env with obs='lowdim' or 'both'")
@@ -185,11 +203,7 @@ class JITI:
             scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
         chosen, chosen_q, executed = 0, q, action
         if scores_c is not None:
-            eligible = scores_c
-            if self.trust_radius is not None:
-                far = np.linalg.norm(candidates - action, axis=1) > self.trust_radius
-                eligible = np.where(far, -np.inf, scores_c)
-            chosen = int(np.argmax(eligible))  # first maximum: the base action wins ties
+            chosen = choose_candidate(scores_c, np.linalg.norm(candidates - action, axis=1), self.trust_radius)
             chosen_q, executed = float(scores_c[chosen]), candidates[chosen]
         self._scores.append(chosen_q)
         elapsed = time.perf_counter() - start
@@ -203,13 +217,7 @@ class JITI:
         return executed
 
     def _candidates(self, obs: Observation, action: np.ndarray) -> np.ndarray:
-        n = self.n_candidates
-        drawn = np.asarray(self.policy.sample(obs, n), dtype=np.float64)
-        if drawn.shape != (n, ACTION_DIM):
-            raise ValueError(f"{type(self.policy).__name__}.sample(obs, {n}) returned shape {drawn.shape}, expected ({n}, {ACTION_DIM})")
-        candidates = np.clip(drawn, ACTION_LOW, ACTION_HIGH)
-        candidates[0] = action
-        return candidates
+        return draw_candidates(self.policy, obs, action, self.n_candidates)
 
     def _score(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
         scores = np.asarray(self.critic.q(state, actions), dtype=np.float64).reshape(-1)

@@ -1,0 +1,61 @@
+"""How much can a one-step intervention do for this policy, and how much of it does the critic find?
+
+Branches evaluation episodes in the simulator (`elegant.headroom`): at every EVERY-th step, each of N
+candidates from the base policy is executed once and the base policy finishes the episode. Per episode
+it prints one line per decision point, one character per candidate (candidate 0 = the base action):
+E elegant success, . not, with the critic's choice marked by brackets; then the summary (headroom,
+the critic's hit rate against a random eligible candidate, harm on elegant episodes) as one JSON object
+on the last line. Costly: about N x (decision points) episodes per start.
+
+    python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0 [--episodes 4]
+        [--seed 3] [--every 15] [--first 10] [--candidates 16] [--trust-radius 0.3] [--out headroom.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from base_suites.atomic import atomic_write_json
+from elegant.headroom import intervention_headroom
+from elegant.jiti import choose_candidate
+
+
+def _row(point: dict, trust_radius: float | None) -> str:
+    chosen = choose_candidate(np.asarray(point["q"]), np.asarray(point["distance"]), trust_radius)
+    marks = ["E" if e else "." for e in point["elegant"]]
+    marks[chosen] = f"[{marks[chosen]}]"
+    return f"  step {point['step']:4d}  " + "".join(marks)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("policy")
+    parser.add_argument("critic")
+    parser.add_argument("--suite", default="libero_object")
+    parser.add_argument("--task", type=int, default=0)
+    parser.add_argument("--episodes", type=int, default=4)
+    parser.add_argument("--seed", type=int, default=3, help="the evaluation seed whose starts are branched")
+    parser.add_argument("--every", type=int, default=15)
+    parser.add_argument("--first", type=int, default=10)
+    parser.add_argument("--candidates", type=int, default=16)
+    parser.add_argument("--trust-radius", type=float, default=0.3, help="<= 0 for none")
+    parser.add_argument("--max-steps", type=int)
+    parser.add_argument("--out", help="write every branch outcome here (JSON)")
+    args = parser.parse_args()
+    radius = args.trust_radius if args.trust_radius > 0 else None
+    result = intervention_headroom(args.suite, args.task, args.policy, args.critic, episodes=args.episodes, seed=args.seed,
+                                   every=args.every, first=args.first, n_candidates=args.candidates, trust_radius=radius,
+                                   max_steps=args.max_steps)
+    for episode in result["episodes"]:
+        print(f"init {episode['init_index']}: base {'elegant success' if episode['base_elegant'] else 'not elegant'}, {episode['steps']} steps")
+        for point in episode["points"]:
+            print(_row(point, radius))
+    if args.out:
+        atomic_write_json(args.out, result)
+    print(json.dumps({"benchmark": "jiti_headroom", "policy": args.policy, "critic": args.critic, **result["summary"]}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,160 @@
+"""Intervention headroom: can one changed action make a policy's episode elegant, and does the critic find it?
+
+JITI replaces one action at a critical moment and hands control back to the base policy. Whether that
+can turn an inelegant episode into an elegant success depends first on the policy: if it tips the can at
+every placement whatever happened before, no single choice repairs the episode and no critic can show a
+gain. This diagnostic measures that ceiling in the simulator, by branching (JITI itself never looks
+ahead). From each start, as in `elegant eval` with the same seed:
+
+1. run the base policy, and every `every` steps from step `first` draw N candidates as JITI would
+   (candidate 0 = the base action) and score them with the critic;
+2. for every decision point and candidate, replay the episode to that step (the env is deterministic
+   given its reset seed and the actions), execute the candidate, let the base policy finish, and judge
+   the episode with the ITC monitor (a branch stops at its first violation: it can no longer be elegant).
+
+Summarised over decision points: how often the choice matters at all, how often some eligible candidate
+(within the trust radius) gives an elegant success where the base action does not (the headroom), how
+often the critic's choice does (its hit rate), against a uniformly random eligible candidate; and on
+base-elegant episodes, how often each choice spoils the episode.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from base_suites import get_task, make_env
+from base_suites.errors import UserInputError
+from elegant.evaluation import open_critic, open_policy, episode_start
+from elegant.jiti import choose_candidate, draw_candidates
+from elegant.policies.adapters import as_policy
+
+
+def _rollout(env, monitor, policy, init_index: int, reset_seed: int, prefix: Sequence[np.ndarray],
+             stop_on_violation: bool, at_step: Callable[[int, dict, np.ndarray], None] | None = None) -> tuple[list[np.ndarray], bool]:
+    """Episode from the given start: `prefix` actions first, then the policy's. Returns the executed
+    actions and whether the episode was an elegant success. `at_step(t, obs, base_action)` sees each of
+    the policy's decisions (the policy is called at every step, so its history matches the observations)."""
+    obs, _ = env.reset(seed=reset_seed, options={"init_state": init_index})
+    monitor.reset()
+    policy.reset(env.metadata, seed=reset_seed)
+    actions: list[np.ndarray] = []
+    info: dict[str, Any] = {"success": False}
+    for t in range(env.max_steps):
+        action = np.asarray(policy(obs), dtype=np.float64)
+        if at_step is not None:
+            at_step(t, obs, action)
+        if t < len(prefix):
+            action = prefix[t]
+        obs, _, terminated, truncated, info = env.step(action)
+        actions.append(action)
+        result = monitor.step(action)
+        if stop_on_violation and not all(result.kept.values()):
+            return actions, False
+        if terminated or truncated:
+            break
+    return actions, bool(monitor.verdict(bool(info["success"])).elegant)
+
+
+def branch_episode(env, monitor, policy, critic, init_index: int, reset_seed: int, *, every: int, first: int,
+                   n_candidates: int) -> dict[str, Any]:
+    """One start: the base episode's outcome and, per decision point, each candidate's Q, distance from
+    the base action and elegant-success outcome (candidate 0's is the base episode's)."""
+    drawn: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def draw(t: int, obs: dict, action: np.ndarray) -> None:
+        if t >= first and (t - first) % every == 0:
+            candidates = draw_candidates(policy, obs, action, n_candidates)
+            drawn[t] = (candidates, np.asarray(critic.q(obs["state"], candidates), dtype=np.float64))
+
+    actions, base_elegant = _rollout(env, monitor, policy, init_index, reset_seed, (), False, draw)
+    points = []
+    for t, (candidates, q) in sorted(drawn.items()):
+        if t >= len(actions) - 1:
+            continue
+        outcomes = [base_elegant] + [
+            _rollout(env, monitor, policy, init_index, reset_seed, [*actions[:t], candidates[k]], True)[1]
+            for k in range(1, len(candidates))
+        ]
+        distance = np.linalg.norm(candidates - candidates[0], axis=1)
+        points.append({"step": t, "q": q.round(4).tolist(), "distance": distance.round(4).tolist(), "elegant": outcomes})
+    return {"init_index": init_index, "reset_seed": reset_seed, "steps": len(actions), "base_elegant": base_elegant, "points": points}
+
+
+def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float | None) -> dict[str, Any]:
+    """Rates over decision points (see the module docstring); None where no point qualifies."""
+    def rate(values: list[float]) -> float | None:
+        return float(np.mean(values)) if values else None
+
+    matters, reachable, critic_hit, random_hit, critic_harm, random_harm = [], [], [], [], [], []
+    rescuable = []
+    for episode in episodes:
+        any_reachable = False
+        for point in episode["points"]:
+            elegant = np.asarray(point["elegant"], dtype=bool)
+            q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
+            eligible = np.ones(len(q), dtype=bool) if trust_radius is None else distance <= trust_radius
+            chosen = choose_candidate(q, distance, trust_radius)
+            matters.append(float(elegant.any() != elegant.all()))
+            if episode["base_elegant"]:
+                critic_harm.append(float(not elegant[chosen]))
+                random_harm.append(float(1.0 - elegant[eligible].mean()))
+            else:
+                reachable.append(float(elegant[eligible].any()))
+                any_reachable |= bool(elegant[eligible].any())
+                critic_hit.append(float(elegant[chosen]))
+                random_hit.append(float(elegant[eligible].mean()))
+        if not episode["base_elegant"]:
+            rescuable.append(float(any_reachable))
+    return {
+        "episodes": len(episodes),
+        "base_esr": rate([float(e["base_elegant"]) for e in episodes]),
+        "decision_points": sum(len(e["points"]) for e in episodes),
+        "choice_matters": rate(matters),
+        "headroom": rate(reachable),
+        "critic_hit": rate(critic_hit),
+        "random_hit": rate(random_hit),
+        "critic_harm": rate(critic_harm),
+        "random_harm": rate(random_harm),
+        "rescuable_episodes": rate(rescuable),
+        "trust_radius": trust_radius,
+    }
+
+
+def intervention_headroom(
+    suite: str,
+    task: int,
+    policy: Any,
+    critic: Any,
+    *,
+    episodes: int = 4,
+    seed: int = 0,
+    every: int = 15,
+    first: int = 10,
+    n_candidates: int = 16,
+    trust_radius: float | None = None,
+    max_steps: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Branch `episodes` evaluation starts of one task (the starts `elegant eval --seed seed` uses) and
+    return {"summary": ..., "episodes": [...]}. `policy` and `critic` are directories or objects."""
+    from tqdm import tqdm
+
+    from itc import ITCMonitor
+
+    if episodes < 1 or every < 1 or first < 0 or n_candidates < 2:
+        raise UserInputError(f"headroom needs episodes >= 1, every >= 1, first >= 0, n_candidates >= 2; got {episodes}, {every}, {first}, {n_candidates}")
+    spec = get_task(suite, task)
+    env = make_env(suite, spec.index, seed=seed, max_steps=max_steps)
+    try:
+        monitor = ITCMonitor(env)
+        base = as_policy(open_policy(policy), seed=seed)
+        scorer = open_critic(critic).bind(env.metadata)
+        results = []
+        for episode in tqdm(range(episodes), desc=f"headroom {suite}/{spec.index}", unit="ep", disable=not progress):
+            init_index, reset_seed = episode_start(seed, suite, spec.index, episode, spec.n_init_states)
+            results.append(branch_episode(env, monitor, base, scorer, init_index, reset_seed, every=every, first=first, n_candidates=n_candidates))
+    finally:
+        env.close()
+    return {"summary": summarize_headroom(results, trust_radius), "episodes": results}

@@ -1,0 +1,63 @@
+"""The intervention-headroom diagnostic: its summary arithmetic (unit) and, on the real simulator, that a
+branch replays the base episode exactly up to the changed action (the whole method rests on that)."""
+import numpy as np
+import pytest
+
+from base_suites import make_env
+from elegant.headroom import _rollout, branch_episode, summarize_headroom
+from elegant.policies.adapters import as_policy
+from itc import ITCMonitor
+
+
+def _point(q, distance, elegant):
+    return {"step": 0, "q": q, "distance": distance, "elegant": elegant}
+
+
+def test_summary_counts_reachable_critic_and_random_choices_within_the_trust_radius():
+    inelegant = {"base_elegant": False, "points": [
+        # candidate 2 is elegant and the critic's best, but too far: the critic picks 1 (not elegant)
+        _point([0.0, 1.0, 5.0, 0.5], [0.0, 0.1, 0.9, 0.2], [False, False, True, True]),
+        # nothing eligible is elegant
+        _point([0.0, 1.0, 2.0], [0.0, 0.1, 0.2], [False, False, False]),
+    ]}
+    elegant = {"base_elegant": True, "points": [
+        _point([0.0, 2.0, 1.0], [0.0, 0.1, 0.1], [True, False, True]),  # the critic spoils it
+    ]}
+    s = summarize_headroom([inelegant, elegant], trust_radius=0.3)
+    assert s["decision_points"] == 3 and s["base_esr"] == 0.5
+    assert s["choice_matters"] == pytest.approx(2 / 3)
+    assert s["headroom"] == 0.5 and s["rescuable_episodes"] == 1.0
+    assert s["critic_hit"] == 0.0
+    assert s["random_hit"] == pytest.approx((1 / 3 + 0) / 2)
+    assert s["critic_harm"] == 1.0 and s["random_harm"] == pytest.approx(1 / 3)
+    # without a trust radius the far elegant candidate is the critic's choice
+    assert summarize_headroom([inelegant], trust_radius=None)["critic_hit"] == 0.5
+
+
+class Plunge:
+    def __call__(self, obs):
+        return np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0])
+
+
+class HeightCritic:
+    def q(self, state, actions):
+        return state[2] - np.abs(np.asarray(actions)[:, 0])
+
+
+@pytest.mark.sim
+def test_a_branch_replays_the_base_episode_exactly_up_to_the_changed_action():
+    env = make_env("libero_object", 0, seed=0, max_steps=16)
+    monitor, policy = ITCMonitor(env), as_policy(Plunge(), seed=0)
+    states = []
+    actions, _ = _rollout(env, monitor, policy, 3, 7, (), False, lambda t, obs, a: states.append(obs["state"].copy()))
+    replayed = []
+    changed = np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])
+    _rollout(env, monitor, policy, 3, 7, [*actions[:8], changed], False, lambda t, obs, a: replayed.append(obs["state"].copy()))
+    np.testing.assert_array_equal(np.array(replayed[:9]), np.array(states[:9]))  # identical until the change acts
+    assert not np.array_equal(replayed[9], states[9])
+    result = branch_episode(env, monitor, policy, HeightCritic(), 3, 7, every=5, first=2, n_candidates=3)
+    env.close()
+    assert [p["step"] for p in result["points"]] == [2, 7, 12]
+    for point in result["points"]:
+        assert point["distance"][0] == 0.0 and len(point["q"]) == len(point["elegant"]) == 3
+        assert point["elegant"][0] == result["base_elegant"] is False  # a plunge into the objects is never elegant
