@@ -64,9 +64,9 @@ def test_drop_knob_releases_from_height_and_is_recorded():
     assert expert.knobs["drop"] and "drop" in expert.events
 
 
-def test_misplace_is_recorded_when_the_object_is_over_the_wrong_spot_not_when_planned():
+def test_misplace_is_recorded_at_the_release_over_the_wrong_spot_not_when_planned():
     """An episode that times out before the release (after a knock or a long regrasp) misplaced nothing,
-    so the label benchmark must not count it: the event comes once the object hangs over the wrong spot
+    so the label benchmark must not count it: the event comes as the object is let go over the wrong spot
     (near the target, off its centre), not when the offset is drawn at the pick-up spot."""
     env = make_env("libero_object", 3, seed=0)
     obs, _ = env.reset(options={"init_state": 0})
@@ -78,11 +78,13 @@ def test_misplace_is_recorded_when_the_object_is_over_the_wrong_spot_not_when_pl
         obs, _, terminated, truncated, info = env.step(expert(obs))
         if offset_when_recorded is None and "misplace" in expert.events:
             offset_when_recorded = float(np.linalg.norm(env.sim.position(obj)[:2] - env.sim.region(region).position[:2]))
+            supports_at_event = {c.other(obj) for c in env.sim.contacts() if c.involves(obj)} - {"gripper", "robot"}
         if terminated or truncated:
             break
     env.close()
     assert offset_when_recorded is not None
     assert 0.04 < offset_when_recorded < 0.10  # the knob's 5-8 cm, over the basket rather than at the pick-up spot
+    assert supports_at_event  # set down (touching the basket), about to be let go
 
 
 def _collect(tmp_path, name, **kw):

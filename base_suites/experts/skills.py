@@ -164,12 +164,11 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
             break
     if carry_rot is not upright:
         yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
-    if "misplace" in ctx.knobs and isinstance(target, str):
-        # Recorded here, over the wrong spot, not when the offset is drawn: an episode that times out on
-        # the way (after a knock, a long regrasp) never misplaced anything.
-        ctx.events.append("misplace")
+    # The misplace event is recorded at the release over the wrong spot, not when the offset is drawn:
+    # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing.
+    misplaced = "misplace" in ctx.knobs and isinstance(target, str)
     if "drop" in ctx.knobs and isinstance(target, str):
-        ctx.events.append("drop")
+        ctx.events.extend(["misplace", "drop"] if misplaced else ["drop"])
         yield from ctx.hold(OPEN, 10)
         yield from ctx.hold(OPEN, 10)
         return True
@@ -184,6 +183,8 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
         if any(e not in ("gripper", "robot") for e in touching) and np.linalg.norm(xy_error) < 0.03:
             break
         yield ctx.servo.action(np.array([*xy_error, -0.02 if aligned else 0.0]), rotation_error(upright, view.eef_rotation()), CLOSE, speed=0.35)
+    if misplaced:
+        ctx.events.append("misplace")
     yield from ctx.hold(OPEN, 10, upright)
     up = view.eef_position() + np.array([0, 0, 0.10])
     yield from ctx.goto(up, upright, OPEN, tol=0.02, max_steps=30)
