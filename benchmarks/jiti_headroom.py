@@ -7,7 +7,7 @@ E elegant success, . not, with the critic's choice marked by brackets; then the 
 the critic's hit rate against a random eligible candidate, harm on elegant episodes) as one JSON object
 on the last line. Costly: about N x (decision points) episodes per start.
 
-    python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0 [--episodes 4]
+    python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0 [--episodes 4 | --episodes 1,10,12]
         [--seed 3] [--every 15] [--first 10] [--candidates 16] [--trust-radius 0.3] [--out headroom.json]
 """
 from __future__ import annotations
@@ -35,7 +35,7 @@ def main() -> None:
     parser.add_argument("critic")
     parser.add_argument("--suite", default="libero_object")
     parser.add_argument("--task", type=int, default=0)
-    parser.add_argument("--episodes", type=int, default=4)
+    parser.add_argument("--episodes", default="4", help="a count N (episodes 0..N-1) or comma-separated episode indices")
     parser.add_argument("--seed", type=int, default=3, help="the evaluation seed whose starts are branched")
     parser.add_argument("--every", type=int, default=15)
     parser.add_argument("--first", type=int, default=10)
@@ -45,7 +45,8 @@ def main() -> None:
     parser.add_argument("--out", help="write every branch outcome here (JSON)")
     args = parser.parse_args()
     radius = args.trust_radius if args.trust_radius > 0 else None
-    result = intervention_headroom(args.suite, args.task, args.policy, args.critic, episodes=args.episodes, seed=args.seed,
+    episodes = [int(e) for e in args.episodes.split(",")] if "," in args.episodes else list(range(int(args.episodes)))
+    result = intervention_headroom(args.suite, args.task, args.policy, args.critic, episodes=episodes, seed=args.seed,
                                    every=args.every, first=args.first, n_candidates=args.candidates, trust_radius=radius,
                                    max_steps=args.max_steps)
     for episode in result["episodes"]:

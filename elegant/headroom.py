@@ -128,7 +128,7 @@ def intervention_headroom(
     policy: Any,
     critic: Any,
     *,
-    episodes: int = 4,
+    episodes: Sequence[int] = (0, 1, 2, 3),
     seed: int = 0,
     every: int = 15,
     first: int = 10,
@@ -137,14 +137,15 @@ def intervention_headroom(
     max_steps: int | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Branch `episodes` evaluation starts of one task (the starts `elegant eval --seed seed` uses) and
-    return {"summary": ..., "episodes": [...]}. `policy` and `critic` are directories or objects."""
+    """Branch the starts of evaluation episodes `episodes` (indices, as `elegant eval --seed seed` numbers
+    them) of one task; return {"summary": ..., "episodes": [...]}. `policy` and `critic` are directories
+    or objects."""
     from tqdm import tqdm
 
     from itc import ITCMonitor
 
-    if episodes < 1 or every < 1 or first < 0 or n_candidates < 2:
-        raise UserInputError(f"headroom needs episodes >= 1, every >= 1, first >= 0, n_candidates >= 2; got {episodes}, {every}, {first}, {n_candidates}")
+    if not episodes or min(episodes) < 0 or every < 1 or first < 0 or n_candidates < 2:
+        raise UserInputError(f"headroom needs episode indices >= 0, every >= 1, first >= 0, n_candidates >= 2; got {list(episodes)}, {every}, {first}, {n_candidates}")
     spec = get_task(suite, task)
     env = make_env(suite, spec.index, seed=seed, max_steps=max_steps)
     try:
@@ -152,7 +153,7 @@ def intervention_headroom(
         base = as_policy(open_policy(policy), seed=seed)
         scorer = open_critic(critic).bind(env.metadata)
         results = []
-        for episode in tqdm(range(episodes), desc=f"headroom {suite}/{spec.index}", unit="ep", disable=not progress):
+        for episode in tqdm(list(episodes), desc=f"headroom {suite}/{spec.index}", unit="ep", disable=not progress):
             init_index, reset_seed = episode_start(seed, suite, spec.index, episode, spec.n_init_states)
             results.append(branch_episode(env, monitor, base, scorer, init_index, reset_seed, every=every, first=first, n_candidates=n_candidates))
     finally:
