@@ -61,3 +61,17 @@ def test_a_branch_replays_the_base_episode_exactly_up_to_the_changed_action():
     for point in result["points"]:
         assert point["distance"][0] == 0.0 and len(point["q"]) == len(point["elegant"]) == 3
         assert point["elegant"][0] == result["base_elegant"] is False  # a plunge into the objects is never elegant
+
+
+def test_headroom_plot_is_written_and_an_empty_result_is_refused(tmp_path):
+    from base_suites import UserInputError
+    from elegant.report import plot_headroom
+
+    result = {"episodes": [{"init_index": 3, "base_elegant": False, "points": [
+        _point([0.0, 1.0, 5.0], [0.0, 0.1, 0.9], [False, False, True]),
+        _point([2.0, 1.0, 0.0], [0.0, 0.2, 0.1], [False, True, False]),
+    ]}]}
+    path = plot_headroom(result, 0.3, tmp_path / "headroom.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(UserInputError):
+        plot_headroom({"episodes": [{"init_index": 0, "base_elegant": True, "points": []}]}, 0.3, tmp_path / "empty.png")
