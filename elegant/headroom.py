@@ -27,7 +27,7 @@ import numpy as np
 from base_suites import get_task, make_env
 from base_suites.errors import UserInputError
 from elegant.evaluation import open_critic, open_policy, episode_start
-from elegant.jiti import choose_candidate, draw_candidates
+from elegant.jiti import choose_candidate, draw_candidates, eligible_candidates
 from elegant.policies.adapters import as_policy
 
 
@@ -94,15 +94,16 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
         for point in episode["points"]:
             elegant = np.asarray(point["elegant"], dtype=bool)
             q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
-            eligible = np.ones(len(q), dtype=bool) if trust_radius is None else distance <= trust_radius
+            eligible = eligible_candidates(distance, trust_radius)
             chosen = choose_candidate(q, distance, trust_radius)
             matters.append(float(elegant.any() != elegant.all()))
             if episode["base_elegant"]:
                 critic_harm.append(float(not elegant[chosen]))
                 random_harm.append(float(1.0 - elegant[eligible].mean()))
             else:
-                reachable.append(float(elegant[eligible].any()))
-                any_reachable |= bool(elegant[eligible].any())
+                rescued = bool(elegant[eligible].any())
+                reachable.append(float(rescued))
+                any_reachable |= rescued
                 critic_hit.append(float(elegant[chosen]))
                 random_hit.append(float(elegant[eligible].mean()))
         if not episode["base_elegant"]:

@@ -91,11 +91,17 @@ def draw_candidates(policy: Any, obs: Observation, action: np.ndarray, n: int) -
     return candidates
 
 
+def eligible_candidates(distance: np.ndarray, trust_radius: float | None) -> np.ndarray:
+    """Which candidates may be chosen: those whose `distance` (L2 from candidate 0, the base action) is
+    within `trust_radius` (all of them without one)."""
+    distance = np.asarray(distance)
+    return np.ones(distance.shape, dtype=bool) if trust_radius is None else distance <= trust_radius
+
+
 def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: float | None) -> int:
-    """Index of the best-scored candidate whose `distance` (L2 from candidate 0, the base action) is within
-    `trust_radius`; the first maximum, so the base action wins ties and JITI never overrides without a reason."""
-    eligible = scores if trust_radius is None else np.where(distance > trust_radius, -np.inf, scores)
-    return int(np.argmax(eligible))
+    """Index of the best-scored eligible candidate (`eligible_candidates`); the first maximum, so the base
+    action wins ties and JITI never overrides without a reason."""
+    return int(np.argmax(np.where(eligible_candidates(distance, trust_radius), scores, -np.inf)))
 
 
 def _state_of(obs: Observation) -> np.ndarray:

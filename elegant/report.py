@@ -22,6 +22,7 @@ import numpy as np
 from annotations.format import CRITERIA, SEGMENT_LENGTH
 from base_suites.atomic import atomic_write
 from base_suites.errors import UserInputError
+from elegant.jiti import choose_candidate, eligible_candidates
 from elegant.metrics import robustness_metrics
 
 
@@ -117,11 +118,12 @@ def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: P
         for row, point in enumerate(episode["points"]):
             q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
             order = np.argsort(-q, kind="stable")
-            near = np.ones(n_cand, dtype=bool) if trust_radius is None else distance <= trust_radius
+            column = np.argsort(order)  # candidate k is drawn in column[k]
+            near = eligible_candidates(distance, trust_radius)
             for col, k in enumerate(order):
                 image[row, col] = (_ELEGANT if near[k] else _ELEGANT_FAR) if point["elegant"][k] else (_PLAIN if near[k] else _PLAIN_FAR)
-            ax.scatter([int(np.flatnonzero(order == 0)[0])], [row], marker="s", s=60, facecolors="none", edgecolors="black", lw=1)
-            ax.scatter([int(np.flatnonzero(near[order])[0])], [row], marker="o", s=10, color="tab:red")
+            ax.scatter([column[0]], [row], marker="s", s=60, facecolors="none", edgecolors="black", lw=1)
+            ax.scatter([column[choose_candidate(q, distance, trust_radius)]], [row], marker="o", s=10, color="tab:red")
         ax.imshow(image, aspect="auto", interpolation="nearest")
         ax.set_yticks(range(len(episode["points"])), [str(p["step"]) for p in episode["points"]], fontsize=7)
         ax.set_xticks([0, n_cand - 1], ["best Q", "worst Q"], fontsize=7)

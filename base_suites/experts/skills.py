@@ -147,7 +147,10 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]) - np.pi / 2)
     upright = grasp_rotation(yaw)
     goal_xy = _target_xy(view, target, held=obj, shared=shared)
-    if "misplace" in ctx.knobs and isinstance(target, str):
+    # The misplace event is recorded at the release over the wrong spot, not when the offset is drawn:
+    # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing.
+    misplaced = "misplace" in ctx.knobs and isinstance(target, str)
+    if misplaced:
         angle = ctx.rng.uniform(0, 2 * np.pi)
         goal_xy = goal_xy + ctx.rng.uniform(0.05, 0.08) * np.array([np.cos(angle), np.sin(angle)])
     z_carry = carry_height(view, obj, goal_xy)
@@ -164,9 +167,6 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
             break
     if carry_rot is not upright:
         yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
-    # The misplace event is recorded at the release over the wrong spot, not when the offset is drawn:
-    # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing.
-    misplaced = "misplace" in ctx.knobs and isinstance(target, str)
     if "drop" in ctx.knobs and isinstance(target, str):
         ctx.events.extend(["misplace", "drop"] if misplaced else ["drop"])
         yield from ctx.hold(OPEN, 10)
