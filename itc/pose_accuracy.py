@@ -3,8 +3,9 @@
 A placement is judged once per attempt (an attempt starts when the robot grasps the object):
 - when its on/in sub-goal becomes true during the episode (LIBERO ends a successful episode right there,
   so this is often the only chance), or
-- when the object, released within `placement_radius` of its target or touching it, comes to rest
-  (released near the target counts even if it then rolls or bounces farther away: that is the failure).
+- when the object, released within `placement_radius` of its target, touching it, or beside a movable
+  target (within `beside_margin` of a basket's outside), comes to rest (released near the target counts
+  even if it then rolls or bounces farther away: that is the failure).
 The object must then lie within `place_xy_tolerance` of the target's centre; where several goal objects
 share one region (two items in a basket, two pots on a stove) they cannot all sit at its centre, so the
 tolerance there grows per axis to the region's half size minus `region_edge_margin` (an ellipse test).
@@ -102,4 +103,15 @@ class PoseAccuracy(Constraint):
         centre, _, _ = self._centre(ctx, placement)
         points = [ctx.position(placement.obj)[:2]] + ([release_xy] if release_xy is not None else [])
         close = min(float(np.linalg.norm(p - centre[:2])) for p in points) <= self.params.placement_radius
-        return close or (placement.target_entity is not None and placement.target_entity in ctx.touches(placement.obj))
+        return close or (placement.target_entity is not None and placement.target_entity in ctx.touches(placement.obj)) \
+            or self._beside(ctx, placement)
+
+    def _beside(self, ctx: StepContext, placement: Placement) -> bool:
+        """Whether the object rests next to its movable target (xy bounding boxes within `beside_margin`).
+        Fixtures are left out: clearing a bowl from a drawer's path sets it down beside the cabinet on purpose."""
+        target = placement.target_entity
+        if target is None or target not in ctx.sim.objects:
+            return False
+        held, other = ctx.sim.geom_points(placement.obj)[:, :2], ctx.sim.geom_points(target)[:, :2]
+        gap = np.maximum(0.0, np.maximum(other.min(axis=0) - held.max(axis=0), held.min(axis=0) - other.max(axis=0)))
+        return float(np.linalg.norm(gap)) <= self.params.beside_margin

@@ -64,27 +64,33 @@ def test_drop_knob_releases_from_height_and_is_recorded():
     assert expert.knobs["drop"] and "drop" in expert.events
 
 
-def test_misplace_is_recorded_at_the_release_over_the_wrong_spot_not_when_planned():
-    """An episode that times out before the release (after a knock or a long regrasp) misplaced nothing,
-    so the label benchmark must not count it: the event comes as the object is let go over the wrong spot
-    (near the target, off its centre), not when the offset is drawn at the pick-up spot."""
-    env = make_env("libero_object", 3, seed=0)
+def test_misplace_sets_the_object_down_beside_its_container_and_is_recorded_at_the_release():
+    """The misplace event comes as the object is let go over the wrong spot, not when the offset is drawn
+    at the pick-up spot: an episode that times out before the release misplaced nothing. Into a basket
+    the wrong spot is beside it: released 5-8 cm off-centre, the basket's sloped wall slid the object back
+    within tolerance (libero_object/5, init 5), and the knob went unseen by the labels."""
+    env = ITCWrapper(make_env("libero_object", 3, seed=0))
     obs, _ = env.reset(options={"init_state": 0})
-    (_, obj, region), = env.task.goal
-    expert = ScriptedExpert(env, quality={"misplace": 1.0}, seed=0)
-    expert.reset(env.metadata, episode=0)
-    offset_when_recorded = None
-    for _ in range(env.max_steps):
+    sim = env.unwrapped.sim
+    (_, obj, region), = env.unwrapped.task.goal
+    basket = sim.region(region).parent
+    expert = ScriptedExpert(env.unwrapped, quality={"misplace": 1.0}, seed=0)
+    expert.reset(env.unwrapped.metadata, episode=0)
+    supports_at_event = None
+    for _ in range(env.unwrapped.max_steps):
         obs, _, terminated, truncated, info = env.step(expert(obs))
-        if offset_when_recorded is None and "misplace" in expert.events:
-            offset_when_recorded = float(np.linalg.norm(env.sim.position(obj)[:2] - env.sim.region(region).position[:2]))
-            supports_at_event = {c.other(obj) for c in env.sim.contacts() if c.involves(obj)} - {"gripper", "robot"}
+        if supports_at_event is None and "misplace" in expert.events:
+            supports_at_event = {c.other(obj) for c in sim.contacts() if c.involves(obj)} - {"gripper", "robot"}
+            basket_xy = sim.geom_points(basket)[:, :2]
+            held_xy = sim.geom_points(obj)[:, :2]
         if terminated or truncated:
             break
     env.close()
-    assert offset_when_recorded is not None
-    assert 0.04 < offset_when_recorded < 0.10  # the knob's 5-8 cm, over the basket rather than at the pick-up spot
-    assert supports_at_event  # set down (touching the basket), about to be let go
+    assert supports_at_event and basket not in supports_at_event  # set down on the floor, about to be let go
+    # beside the basket: the object's footprint clear of the basket's along some axis
+    assert held_xy[:, 0].min() > basket_xy[:, 0].max() or held_xy[:, 0].max() < basket_xy[:, 0].min() \
+        or held_xy[:, 1].min() > basket_xy[:, 1].max() or held_xy[:, 1].max() < basket_xy[:, 1].min()
+    assert not info["success"] and "pose_accuracy" in info["itc_verdict"]["violated"]
 
 
 def _collect(tmp_path, name, **kw):

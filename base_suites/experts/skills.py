@@ -133,6 +133,26 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
 
 
 
+MISPLACE_OFFSET = (0.05, 0.08)  # the misplace knob sets objects down this far from their goal spot (m)
+MISPLACE_CLEARANCE = 0.015  # ... or this far clear of the container the goal region belongs to
+
+
+def _misplaced_xy(ctx: SkillContext, target: str, held: str, goal_xy: np.ndarray) -> np.ndarray:
+    """The wrong spot for the misplace knob: 5-8 cm off the goal, in a random direction. A goal on or in a
+    movable object (basket, bowl, plate) gets its object set down beside that object instead: a basket's
+    sloped wall funnels an object released 5-8 cm off-centre back to its middle, undoing the knob."""
+    view = ctx.view
+    angle = ctx.rng.uniform(0, 2 * np.pi)
+    direction = np.array([np.cos(angle), np.sin(angle)])
+    distance = ctx.rng.uniform(*MISPLACE_OFFSET)
+    container = view.region(target).parent if target in view.regions else target
+    if container in view.objects:
+        beyond_wall = float(np.max((view.geom_points(container)[:, :2] - goal_xy) @ direction))
+        held_reach = float(np.max((view.geom_points(held)[:, :2] - view.position(held)[:2]) @ -direction))
+        distance = max(distance, beyond_wall + held_reach + MISPLACE_CLEARANCE)
+    return goal_xy + distance * direction
+
+
 def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
     # Tilt about the horizontal axis across the fingers: the held object swings out of upright.
     axis = np.cross(finger_axis(yaw), [0.0, 0.0, 1.0])
@@ -151,8 +171,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing.
     misplaced = "misplace" in ctx.knobs and isinstance(target, str)
     if misplaced:
-        angle = ctx.rng.uniform(0, 2 * np.pi)
-        goal_xy = goal_xy + ctx.rng.uniform(0.05, 0.08) * np.array([np.cos(angle), np.sin(angle)])
+        goal_xy = _misplaced_xy(ctx, target, obj, goal_xy)
     z_carry = carry_height(view, obj, goal_xy)
     carry_rot = upright
     if "tilt" in ctx.knobs and isinstance(target, str):
