@@ -1,8 +1,9 @@
 """The trained critic on disk and at run time.
 
 A critic directory holds `critic.pt` (the `TwinQNetwork` state_dict) and `critic.json` (how to rebuild
-and feed it: network config, the `TaskFeatureEncoder` layouts, observation normalisation, action
-bounds, gamma, the training config and the library versions). `load(dir)` returns a `Critic`, which
+and feed it: network config, the `TaskFeatureEncoder` layouts, observation normalisation, per-step
+action bounds, the chunk length of the actions it scores, gamma, the training config and the library
+versions). `load(dir)` returns a `Critic`, which
 scores actions with the module's plain tensors under `torch.inference_mode`, without TensorDicts,
 because JITI calls it inside the control loop (target: <= 150 us for one state and 16 actions on one
 thread).
@@ -147,8 +148,10 @@ class Critic:
         self.normalization = normalization
         self.config = dict(config or {})
         self.path = path
-        self._center = normalization.action_center.astype(np.float32)
-        self._inv_half = (1.0 / normalization.action_half_range).astype(np.float32)
+        self.chunk = int(self.config.get("chunk", 1))  # critics written before action chunking score single actions
+        # a chunk's actions are normalised step by step with the per-step bounds
+        self._center = np.tile(normalization.action_center, self.chunk).astype(np.float32)
+        self._inv_half = np.tile(1.0 / normalization.action_half_range, self.chunk).astype(np.float32)
         weights, biases = list(network.weights), list(network.biases)
         critics = range(network.n_critics)
         self._layers = _TwinLayers(
@@ -183,7 +186,10 @@ class Critic:
         return self
 
     def q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Q of raw env actions: state (D,) with actions (N, 7) -> (N,); states (B, D) with (B, N, 7) -> (B, N)."""
+        """Q of raw env actions: state (D,) with actions (N, A) -> (N,); states (B, D) with (B, N, A) -> (B, N).
+
+        A is 7 for a per-step critic and 7 * chunk for a critic of action chunks (each row a chunk's
+        actions one after the other, `critics.data.action_chunks`)."""
         if self._binding is None:
             raise RuntimeError("Critic.q needs a task: call critic.bind(env.metadata) first")
         return self._score(self._binding, state, actions)
@@ -216,6 +222,7 @@ def save_critic(
     *,
     gamma: float,
     training: Mapping[str, Any],
+    chunk: int = 1,
 ) -> str:
     """Write critic.pt and critic.json into out_dir (each atomically; the weights first)."""
     os.makedirs(out_dir, exist_ok=True)
@@ -226,6 +233,7 @@ def save_critic(
         "encoder": encoder.to_dict(),
         "normalization": normalization.to_dict(),
         "gamma": float(gamma),
+        "chunk": int(chunk),
         "training": dict(training),
         "versions": library_versions(),
     })

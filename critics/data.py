@@ -17,6 +17,16 @@ Each step t of each demo becomes one transition, in TorchRL's layout (batch = tr
     next/terminated    (1,)  bool     True at the last step of a demo that reached the task goal
     next/truncated     (1,)  bool     True at the last step of a demo that did not
 
+Action chunks (`chunk` > 1, for a critic that scores the chunks a chunked policy commits to): step t's
+action is the chunk a_t .. a_{t+chunk-1} of its demo, each step normalised as above and flattened
+(chunk * A,), repeating the demo's last action past its end, as the BC policy is trained. TorchRL's
+`MultiStep` turns the per-step transitions into chunk transitions: next/reward becomes the discounted
+sum of the chunk's penalties, next/observation the state after the chunk (or after the demo's last step),
+and `steps_to_next_obs` (1,) int64 how many steps that is, so the loss discounts the bootstrap by
+gamma ** steps_to_next_obs (Q-chunking's unbiased chunk backup). next/done, terminated and truncated are
+those of the chunk's last step (`MultiStep` keeps step t's). `mc_return` stays the per-step return-to-go
+from t, which is exactly the value of the chunk executed from t in the dataset.
+
 Episode ends: the returns-to-go are computed with `torchrl.objectives.value.functional.reward2go`, the
 demo's last step being its end, so the return of the last step is its own reward. A demo that reaches
 the goal ends in a terminal state (the TD target does not bootstrap past it); a demo that stops without
@@ -36,6 +46,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict
 from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+from torchrl.data.postprocs import MultiStep
 from torchrl.objectives.value.functional import reward2go
 
 from annotations import CRITERIA, DemoFile, TaskFeatureEncoder
@@ -58,6 +69,7 @@ class TransitionData:
     normalization: Normalization
     gamma: float
     n_demos: int
+    chunk: int = 1
 
     @property
     def obs_dim(self) -> int:
@@ -164,7 +176,38 @@ def _column(values: np.ndarray | torch.Tensor) -> torch.Tensor:
     return torch.as_tensor(values).unsqueeze(-1)
 
 
-def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: str = "step") -> TransitionData:
+def action_chunks(actions: np.ndarray, chunk: int) -> np.ndarray:
+    """(T, A) actions of one episode -> (T, chunk * A): row t holds actions t .. t + chunk - 1, the last
+    action repeated past the episode's end."""
+    actions = np.asarray(actions)
+    ahead = np.minimum(np.arange(len(actions))[:, None] + np.arange(int(chunk)), len(actions) - 1)
+    return actions[ahead].reshape(len(actions), -1)
+
+
+def chunk_transitions(transitions: TensorDict, lengths: Sequence[int], chunk: int, gamma: float) -> TensorDict:
+    """Per-step transitions of demos stored back to back (`lengths` steps each) -> chunk transitions (see
+    the module docstring); chunk 1 returns them unchanged."""
+    if chunk == 1:
+        return transitions
+    multi_step = MultiStep(gamma=gamma, n_steps=chunk)
+    out = []
+    for demo in transitions.split(list(lengths)):
+        steps = len(demo)
+        stepped = multi_step(demo)  # works on a shallow copy
+        to_next = stepped["steps_to_next_obs"].reshape(steps)
+        last = torch.arange(steps) + to_next - 1  # the chunk's last step
+        flags = {key: demo["next", key][last] for key in ("done", "terminated", "truncated")}
+        out.append(TensorDict({
+            "observation": demo["observation"],
+            "action": torch.from_numpy(action_chunks(demo["action"].numpy(), chunk)),
+            "mc_return": demo["mc_return"],
+            "steps_to_next_obs": to_next.unsqueeze(-1),
+            "next": {"observation": stepped["next", "observation"], "reward": stepped["next", "reward"], **flags},
+        }, batch_size=[steps]))
+    return torch.cat(out)
+
+
+def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: str = "step", chunk: int = 1) -> TransitionData:
     """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
 
     gamma: the critic's discount (default: the annotation's). A shorter horizon than the annotation's
@@ -174,9 +217,12 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
     25-frame window that violates one. A violation judged at one instant (an object coming to rest off
     target) is one step under "step", next to a tilt's dozens, so Q barely registers it; per window every
     violation weighs a window, the actions leading up to it inside the window share its penalty, and
-    human labels (which are per window) reach the critic as they are."""
+    human labels (which are per window) reach the critic as they are.
+    chunk: the number of actions each transition's action holds (see the module docstring)."""
     if gamma is not None and not 0.0 < gamma < 1.0:
         raise UserInputError(f"gamma must lie in (0, 1), got {gamma}")
+    if int(chunk) != chunk or chunk < 1:
+        raise UserInputError(f"chunk must be a positive integer, got {chunk!r}")
     if reward not in REWARDS:
         raise unknown_choice("reward", reward, REWARDS)
     if not paths:
@@ -241,7 +287,8 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
         },
         batch_size=[len(penalty)],
     )
-    return TransitionData(transitions, encoder, normalization, float(gamma), len(demos))
+    transitions = chunk_transitions(transitions, [len(d.reward) for d in demos], int(chunk), gamma)
+    return TransitionData(transitions, encoder, normalization, float(gamma), len(demos), int(chunk))
 
 
 def make_replay_buffer(transitions: TensorDict, batch_size: int, generator: torch.Generator) -> TensorDictReplayBuffer:

@@ -70,7 +70,7 @@ class CalQLTerms:
     q_uniform: Tensor  # (C, B, N)
     q_policy: Tensor  # (C, B, 2N) actions from pi(.|s) then pi(.|s'), all scored at s
     policy_log_prob: Tensor  # (B, 2N), detached
-    target: Tensor  # (B,) r + gamma (1 - terminated) min over target critics of Q(s', a'~pi(.|s'))
+    target: Tensor  # (B,) r + gamma^steps (1 - terminated) min over target critics of Q(s', a'~pi(.|s'))
     mc_return: Tensor  # (B,)
 
 
@@ -96,7 +96,9 @@ class CalQLLoss(LossModule):
         target_entropy: the entropy the temperature tuning aims at; "auto" is -action_dim.
 
     Reads (names configurable with `set_keys`): observation, action, mc_return, ("next", observation),
-    ("next", reward), ("next", terminated). Rewards, terminated flags and returns may be (B,) or (B, 1).
+    ("next", reward), ("next", terminated), and steps_to_next_obs where present (multi-step and action-chunk
+    transitions: the bootstrap is discounted by gamma ** steps_to_next_obs, TorchRL's value-estimator
+    convention). Rewards, terminated flags, returns and step counts may be (B,) or (B, 1).
     """
 
     @dataclass
@@ -110,6 +112,8 @@ class CalQLLoss(LossModule):
             terminated: True where the episode ended in a terminal state (no bootstrap), read under
                 "next". Default "terminated".
             mc_return: the discounted return-to-go of the dataset trajectory (Cal-QL's floor). Default "mc_return".
+            steps_to_next_obs: how many env steps separate s and s' (optional; absent means 1). Default
+                "steps_to_next_obs" (as written by `torchrl.data.postprocs.MultiStep`).
         """
 
         observation: NestedKey = "observation"
@@ -117,6 +121,7 @@ class CalQLLoss(LossModule):
         reward: NestedKey = "reward"
         terminated: NestedKey = "terminated"
         mc_return: NestedKey = "mc_return"
+        steps_to_next_obs: NestedKey = "steps_to_next_obs"
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys
@@ -207,6 +212,8 @@ class CalQLLoss(LossModule):
         reward = tensordict.get(("next", k.reward)).reshape(batch)
         terminated = tensordict.get(("next", k.terminated)).reshape(batch)
         mc_return = tensordict.get(k.mc_return).reshape(batch).to(obs.dtype)
+        steps = tensordict.get(k.steps_to_next_obs, None)
+        gamma = self.gamma if steps is None else self.gamma ** steps.reshape(batch).to(obs.dtype)
         n = self.n_actions
 
         with self.actor_network_params.to_module(self.actor_network):
@@ -222,7 +229,7 @@ class CalQLLoss(LossModule):
         actor_q = self._q(self.qvalue_network_params.detach(), obs, actor_action.unsqueeze(1)).amin(0).squeeze(-1)
         with torch.no_grad():  # .data: swapping the target buffers into the module would turn them into Parameters
             next_value = self._q(self.target_qvalue_network_params.data, next_obs, next_action.unsqueeze(1)).amin(0).squeeze(-1)
-            target = td0_return_estimate(self.gamma, next_value, reward.to(next_value.dtype), terminated.bool())
+            target = td0_return_estimate(gamma, next_value, reward.to(next_value.dtype), terminated.bool())
         return CalQLTerms(
             actor_log_prob=actor_log_prob,
             actor_q=actor_q,

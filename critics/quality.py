@@ -25,7 +25,7 @@ from annotations import CRITERIA, DemoFile, task_key
 from base_suites.errors import UserInputError, unknown_choice
 from base_suites.seeds import derive_seed
 from critics.artifact import Critic, load
-from critics.data import segment_length, step_window_labels
+from critics.data import action_chunks, segment_length, step_window_labels
 
 if TYPE_CHECKING:  # the simulator loads only when continuation pairs are rolled out
     from base_suites.env import LiberoEnv
@@ -60,7 +60,7 @@ def _score_file(critic: Critic, path: str) -> tuple[np.ndarray, dict[str, np.nda
                     raise UserInputError(f"{path}: data.state_layouts has no layout for task {key}")
                 meta = {"suite": demo.attrs["suite"], "task_index": demo.attrs["task_index"], "state_layout": layouts[key]}
                 bindings[key] = critic._binding_for(meta)
-            q.append(critic._score(bindings[key], demo.obs, np.asarray(demo.actions)[:, None, :])[:, 0])
+            q.append(critic._score(bindings[key], demo.obs, action_chunks(demo.actions, critic.chunk)[:, None, :])[:, 0])
             for c, labels in step_window_labels(demo, length, f"{path}: data/{demo.name}").items():
                 kept[c].append(labels)
     return np.concatenate(q), {c: np.concatenate(v) for c, v in kept.items()}
@@ -223,7 +223,7 @@ def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits:
 
 def _side_score(critic: Scorer, side: Continuation, steps: int) -> float:
     """Mean Q over a side's first `steps` steps: how good the critic finds that stretch of behaviour."""
-    return float(np.mean(critic.q(side.states[:steps], side.actions[:steps, None, :])[:, 0]))
+    return float(np.mean(critic.q(side.states[:steps], action_chunks(side.actions, getattr(critic, "chunk", 1))[:steps, None, :])[:, 0]))
 
 
 def _gap(critic: Scorer, pair: Pair) -> float:

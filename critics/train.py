@@ -64,9 +64,10 @@ class TrainConfig:
     checkpoint_every: int = 1000
     gamma: float | None = None  # None: the annotation's
     reward: str = "step"  # the violation penalty per step or per window (critics.data.REWARDS)
+    chunk: int = 1  # actions per scored decision: the chunk length of the policy the critic will judge
 
     def validate(self) -> None:
-        for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every"):
+        for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
             value = getattr(self, name)
             if not isinstance(value, int) or value < 1:
                 raise UserInputError(f"train-critic: {name} must be a positive integer, got {value!r}")
@@ -193,6 +194,7 @@ def train_critic(
     log_every: int = 100,
     gamma: float | None = None,
     reward: str = "step",
+    chunk: int = 1,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -202,7 +204,8 @@ def train_critic(
     one); checkpoint_every / log_every: steps between checkpoints / metrics rows; n_actions: N of the
     uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
     cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
-    annotation's) and reward ("step" or "segment"): see `critics.data.load_transitions`. Learning rates and tau are `TrainConfig`'s.
+    annotation's), reward ("step" or "segment") and chunk (actions per scored decision, the chunk length of
+    the policy the critic will judge): see `critics.data.load_transitions`. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -211,7 +214,7 @@ def train_critic(
     cfg = TrainConfig(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
-        log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward,
+        log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)
@@ -219,7 +222,7 @@ def train_critic(
     if os.path.exists(ckpt_path) and not resume:
         raise UserInputError(f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory")
 
-    data = load_transitions(cfg.paths, cfg.gamma, cfg.reward)
+    data = load_transitions(cfg.paths, cfg.gamma, cfg.reward, cfg.chunk)
     fingerprint = data.fingerprint()
     run = _Run(cfg, data)
     start = 0
@@ -249,7 +252,7 @@ def train_critic(
     seconds = time.perf_counter() - began
 
     save_critic(out, run.loss.get_stateful_net("qvalue_network"), data.encoder, data.normalization,
-                gamma=data.gamma, training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)})
+                gamma=data.gamma, chunk=data.chunk, training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)})
     trained = max(cfg.steps - start, 0)
     return {
         "out": out,

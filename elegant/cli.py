@@ -141,6 +141,7 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch-size", type=int, default=256)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--history", type=int, default=10, help="states stacked as input")
+    p.add_argument("--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)")
     p.add_argument("--resume", action="store_true")
 
 
@@ -149,7 +150,7 @@ def _train_policy(args: argparse.Namespace) -> dict:
     from elegant.policies import train_policy
 
     summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
-                           batch_size=args.batch_size, lr=args.lr, history=args.history)
+                           batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk)
     summary.pop("loss_history", None)
     return summary
 
@@ -167,6 +168,7 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
     p.add_argument("--reward", default="step",
                    help="step: penalise each violating step; segment: every step of a violating 25-frame window")
+    p.add_argument("--chunk", type=int, default=1, help="actions per scored decision (the chunk length of the policy to judge)")
     p.add_argument("--resume", action="store_true")
 
 
@@ -176,7 +178,7 @@ def _train_critic(args: argparse.Namespace) -> dict:
 
     return train_critic(args.data, args.out, steps=args.steps, batch_size=args.batch_size, seed=args.seed, resume=args.resume,
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
-                        with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward)
+                        with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk)
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:

@@ -1,16 +1,19 @@
-"""Intervention headroom: can one changed action make a policy's episode elegant, and does the critic find it?
+"""Intervention headroom: can one changed decision make a policy's episode elegant, and does the critic find it?
 
-JITI replaces one action at a critical moment and hands control back to the base policy. Whether that
+JITI replaces one decision (an action, or a chunk of actions for a chunked policy) at a critical moment
+and hands control back to the base policy. Whether that
 can turn an inelegant episode into an elegant success depends first on the policy: if it tips the can at
 every placement whatever happened before, no single choice repairs the episode and no critic can show a
 gain. This diagnostic measures that ceiling in the simulator, by branching (JITI itself never looks
 ahead). From each start, as in `elegant eval` with the same seed:
 
 1. run the base policy, and every `every` steps from step `first` draw N candidates as JITI would
-   (candidate 0 = the base action) and score them with the critic;
+   (candidate 0 = the base plan) and score them with the critic (for a chunked policy `every` and
+   `first` must be multiples of its chunk: it decides only there);
 2. for every decision point and candidate, replay the episode to that step (the env is deterministic
-   given its reset seed and the actions), execute the candidate, let the base policy finish, and judge
-   the episode with the ITC monitor (a branch stops at its first violation: it can no longer be elegant).
+   given its reset seed and the actions), execute the candidate plan, let the base policy finish, and
+   judge the episode with the ITC monitor (a branch stops at its first violation: it can no longer be
+   elegant).
 
 Summarised over decision points: how often the choice matters at all, how often some eligible candidate
 (within the trust radius) gives an elegant success where the base action does not (the headroom), how
@@ -19,6 +22,7 @@ base-elegant episodes, how often each choice spoils the episode.
 """
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -27,24 +31,32 @@ import numpy as np
 from base_suites import get_task, make_env
 from base_suites.errors import UserInputError
 from elegant.evaluation import open_critic, open_policy, episode_start
-from elegant.jiti import choose_candidate, draw_candidates, eligible_candidates
+from elegant.jiti import choose_candidate, decide, draw_candidates, eligible_candidates, plan_distance
 from elegant.policies.adapters import as_policy
+from elegant.policies.protocol import chunk_of
 
 
-def _rollout(env, monitor, policy, init_index: int, reset_seed: int, prefix: Sequence[np.ndarray],
-             stop_on_violation: bool, at_step: Callable[[int, dict, np.ndarray], None] | None = None) -> tuple[list[np.ndarray], bool]:
+def _rollout(env, monitor, policy, chunk: int, init_index: int, reset_seed: int, prefix: Sequence[np.ndarray],
+             stop_on_violation: bool, at_decision: Callable[[int, dict, np.ndarray], None] | None = None) -> tuple[list[np.ndarray], bool]:
     """Episode from the given start: `prefix` actions first, then the policy's. Returns the executed
-    actions and whether the episode was an elegant success. `at_step(t, obs, base_action)` sees each of
-    the policy's decisions (the policy is called at every step, so its history matches the observations)."""
+    actions and whether the episode was an elegant success. `at_decision(t, obs, base_plan)` sees each of
+    the policy's decisions (the policy decides or observes at every step, prefix included, so its history
+    and its chunk boundaries match the base episode's)."""
     obs, _ = env.reset(seed=reset_seed, options={"init_state": init_index})
     monitor.reset()
     policy.reset(env.metadata, seed=reset_seed)
     actions: list[np.ndarray] = []
+    queue: deque[np.ndarray] = deque()
     info: dict[str, Any] = {"success": False}
     for t in range(env.max_steps):
-        action = np.asarray(policy(obs), dtype=np.float64)
-        if at_step is not None:
-            at_step(t, obs, action)
+        if queue:
+            policy.observe(obs)
+        else:
+            plan = decide(policy, obs, chunk)
+            if at_decision is not None:
+                at_decision(t, obs, plan)
+            queue.extend(plan)
+        action = queue.popleft()
         if t < len(prefix):
             action = prefix[t]
         obs, _, terminated, truncated, info = env.step(action)
@@ -60,24 +72,25 @@ def _rollout(env, monitor, policy, init_index: int, reset_seed: int, prefix: Seq
 def branch_episode(env, monitor, policy, critic, init_index: int, reset_seed: int, *, every: int, first: int,
                    n_candidates: int) -> dict[str, Any]:
     """One start: the base episode's outcome and, per decision point, each candidate's Q, distance from
-    the base action and elegant-success outcome (candidate 0's is the base episode's)."""
+    the base plan (`plan_distance`) and elegant-success outcome (candidate 0's is the base episode's)."""
+    chunk = chunk_of(policy)
     drawn: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
-    def draw(t: int, obs: dict, action: np.ndarray) -> None:
+    def draw(t: int, obs: dict, plan: np.ndarray) -> None:
         if t >= first and (t - first) % every == 0:
-            candidates = draw_candidates(policy, obs, action, n_candidates)
-            drawn[t] = (candidates, np.asarray(critic.q(obs["state"], candidates), dtype=np.float64))
+            candidates = draw_candidates(policy, obs, plan, n_candidates)
+            drawn[t] = (candidates, np.asarray(critic.q(obs["state"], candidates.reshape(n_candidates, -1)), dtype=np.float64))
 
-    actions, base_elegant = _rollout(env, monitor, policy, init_index, reset_seed, (), False, draw)
+    actions, base_elegant = _rollout(env, monitor, policy, chunk, init_index, reset_seed, (), False, draw)
     points = []
     for t, (candidates, q) in sorted(drawn.items()):
-        if t >= len(actions) - 1:
+        if t + chunk >= len(actions):  # the episode ended within this decision: nothing left to choose
             continue
         outcomes = [base_elegant] + [
-            _rollout(env, monitor, policy, init_index, reset_seed, [*actions[:t], candidates[k]], True)[1]
+            _rollout(env, monitor, policy, chunk, init_index, reset_seed, [*actions[:t], *candidates[k]], True)[1]
             for k in range(1, len(candidates))
         ]
-        distance = np.linalg.norm(candidates - candidates[0], axis=1)
+        distance = plan_distance(candidates)
         points.append({"step": t, "q": q.round(4).tolist(), "distance": distance.round(4).tolist(), "elegant": outcomes})
     return {"init_index": init_index, "reset_seed": reset_seed, "steps": len(actions), "base_elegant": base_elegant, "points": points}
 
@@ -147,11 +160,14 @@ def intervention_headroom(
 
     if not episodes or min(episodes) < 0 or every < 1 or first < 0 or n_candidates < 2:
         raise UserInputError(f"headroom needs episode indices >= 0, every >= 1, first >= 0, n_candidates >= 2; got {list(episodes)}, {every}, {first}, {n_candidates}")
+    base = as_policy(open_policy(policy), seed=seed)
+    chunk = chunk_of(base)
+    if every % chunk or first % chunk:
+        raise UserInputError(f"headroom: the policy decides every {chunk} steps, so every ({every}) and first ({first}) must be multiples of {chunk}")
     spec = get_task(suite, task)
     env = make_env(suite, spec.index, seed=seed, max_steps=max_steps)
     try:
         monitor = ITCMonitor(env)
-        base = as_policy(open_policy(policy), seed=seed)
         scorer = open_critic(critic).bind(env.metadata)
         results = []
         for episode in tqdm(list(episodes), desc=f"headroom {suite}/{spec.index}", unit="ep", disable=not progress):

@@ -26,6 +26,13 @@ Choices made here, each for a reason:
   is always set to a_t itself, so exactly N candidates are scored and the base action is among them.
 - Decision time is what JITI adds to a step: scoring, bookkeeping and, at interventions, candidate
   sampling. The base policy's own forward pass is excluded because it is paid without JITI too.
+- Action chunks: a `ChunkedPolicy` decides `chunk` actions at once and executes them open-loop. JITI then
+  decides at the policy's decision points only: it scores the base chunk with a critic trained on chunks
+  of the same length (Q(s_t, a_t..a_{t+chunk-1})), and at a critical moment chooses among N chunks from
+  the policy's `sample_plans`. One choice then changes the next `chunk` steps coherently, where a single
+  re-ranked 50 ms action barely moves the robot (`benchmarks/jiti_headroom.py` measured that one-step
+  changes near the base action almost never turn an inelegant episode elegant). The window, the
+  threshold and the log count decisions; a per-step policy is the case chunk = 1.
 """
 from __future__ import annotations
 
@@ -40,7 +47,7 @@ import numpy as np
 
 from base_suites.errors import UserInputError, unknown_choice
 from elegant.policies.adapters import as_policy
-from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Observation, as_action
+from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Observation, as_action, chunk_of
 
 MODES = ("jiti", "always", "base")
 THRESHOLD_MODES = ("absolute", "std")
@@ -58,7 +65,8 @@ class Critic(Protocol):
 
 @dataclass(frozen=True)
 class Decision:
-    """One logged step: the base action's score, the window statistics and what was executed.
+    """One logged decision (every step for a per-step policy, the first step of each chunk for a chunked
+    one): the base plan's score, the window statistics and what was executed. `step` is the env step.
 
     `mean`, `std`, `dq` and `tau` are None while the window warms up (or without a critic);
     `q` and `chosen_q` are None only when JITI runs without a critic (mode "base").
@@ -74,26 +82,54 @@ class Decision:
     chosen: int
     chosen_q: float | None
     time: float
-    # Diagnostics for intervened steps: every candidate's Q (index 0 = the base action) and how far the
-    # executed action is from the base action (L2 over the 7 action dims); None when nothing was re-ranked.
+    # Diagnostics for intervened decisions: every candidate's Q (index 0 = the base plan) and how far the
+    # executed plan is from the base plan (`plan_distance`); None when nothing was re-ranked.
     candidate_q: list[float] | None = None
     action_change: float | None = None
 
 
-def draw_candidates(policy: Any, obs: Observation, action: np.ndarray, n: int) -> np.ndarray:
-    """n candidate actions for this step from `policy.sample` (an adapted `Policy`), clipped to the action
-    bounds, with candidate 0 set to the base action `action` so it is always among them."""
-    drawn = np.asarray(policy.sample(obs, n), dtype=np.float64)
-    if drawn.shape != (n, ACTION_DIM):
-        raise ValueError(f"{type(policy).__name__}.sample(obs, {n}) returned shape {drawn.shape}, expected ({n}, {ACTION_DIM})")
+def as_plan(value: Any, chunk: int, source: str) -> np.ndarray:
+    """A decision as a float64 (chunk, 7) plan clipped to the action bounds; refuse any other shape."""
+    plan = np.asarray(value, dtype=np.float64)
+    if plan.shape != (chunk, ACTION_DIM):
+        raise UserInputError(f"{source} returned a plan of shape {plan.shape}; expected ({chunk}, {ACTION_DIM})")
+    return np.clip(plan, ACTION_LOW, ACTION_HIGH)
+
+
+def decide(policy: Any, obs: Observation, chunk: int) -> np.ndarray:
+    """The base decision of an adapted policy at `obs` as a (chunk, 7) plan: its action for a per-step
+    policy (chunk 1), its `plan(obs)` for a `ChunkedPolicy`."""
+    if chunk == 1:
+        return as_action(policy(obs), "base policy")[None]
+    return as_plan(policy.plan(obs), chunk, "base policy")
+
+
+def draw_candidates(policy: Any, obs: Observation, plan: np.ndarray, n: int) -> np.ndarray:
+    """n candidate plans (n, chunk, 7) for this decision, clipped to the action bounds, with candidate 0
+    set to the base plan so it is always among them: from `policy.sample(obs, n)` (an adapted `Policy`)
+    for a per-step policy (chunk 1), from `policy.sample_plans(obs, n)` for a `ChunkedPolicy`."""
+    chunk = len(plan)
+    if chunk == 1:
+        drawn, call = np.asarray(policy.sample(obs, n), dtype=np.float64)[:, None], "sample"
+    else:
+        drawn, call = np.asarray(policy.sample_plans(obs, n), dtype=np.float64), "sample_plans"
+    if drawn.shape != (n, chunk, ACTION_DIM):
+        raise ValueError(f"{type(policy).__name__}.{call}(obs, {n}) returned shape {drawn.shape}, expected ({n}, {chunk}, {ACTION_DIM}) with the chunk dimension")
     candidates = np.clip(drawn, ACTION_LOW, ACTION_HIGH)
-    candidates[0] = action
+    candidates[0] = plan
     return candidates
 
 
+def plan_distance(candidates: np.ndarray) -> np.ndarray:
+    """(n,) distance of each candidate plan (n, chunk, 7) from candidate 0: the root mean square over the
+    chunk's steps of the per-step L2 distance, so a trust radius means the same for any chunk length (for
+    chunk 1 it is the L2 distance of the two actions)."""
+    return np.sqrt(np.mean(np.sum((candidates - candidates[:1]) ** 2, axis=-1), axis=-1))
+
+
 def eligible_candidates(distance: np.ndarray, trust_radius: float | None) -> np.ndarray:
-    """Which candidates may be chosen: those whose `distance` (L2 from candidate 0, the base action) is
-    within `trust_radius` (all of them without one)."""
+    """Which candidates may be chosen: those whose `distance` (`plan_distance` from candidate 0, the base
+    plan) is within `trust_radius` (all of them without one)."""
     distance = np.asarray(distance)
     return np.ones(distance.shape, dtype=bool) if trust_radius is None else distance <= trust_radius
 
@@ -145,6 +181,13 @@ class JITI:
         if critic is None and mode != "base":
             raise UserInputError(f"JITI mode {mode!r} needs a critic; only mode 'base' runs without one")
         self.policy = as_policy(policy, noise_scale=noise_scale, seed=seed)
+        self.chunk = chunk_of(self.policy)
+        critic_chunk = int(getattr(critic, "chunk", 1)) if critic is not None else self.chunk
+        if critic_chunk != self.chunk:
+            raise UserInputError(
+                f"the critic scores chunks of {critic_chunk} actions but the policy decides {self.chunk} at a time: "
+                f"train the critic with --chunk {self.chunk}"
+            )
         self.critic = critic
         self.window = int(window)
         self.threshold = float(threshold)
@@ -156,6 +199,8 @@ class JITI:
         # critic trained on a few demos ranks far-off samples (another GMM mode, a gripper flip) badly.
         self.trust_radius = None if trust_radius is None else float(trust_radius)
         self._scores: deque[float] = deque(maxlen=self.window)
+        self._queue: deque[np.ndarray] = deque()
+        self._step = 0
         self.log: list[Decision] = []
 
     def config(self) -> dict[str, Any]:
@@ -168,6 +213,7 @@ class JITI:
             "n_candidates": self.n_candidates,
             "noise_scale": self.noise_scale,
             "trust_radius": self.trust_radius,
+            "chunk": self.chunk,
             "policy_adapter": type(self.policy).__name__,
         }
 
@@ -181,14 +227,21 @@ class JITI:
         if self.critic is not None:
             self.critic.bind(metadata)
         self._scores.clear()
+        self._queue.clear()
+        self._step = 0
         self.log = []
 
     def __call__(self, obs: Observation) -> np.ndarray:
-        action = as_action(self.policy(obs), "base policy")
+        if self._queue:  # inside a chunk: the decision was taken at its first step
+            self.policy.observe(obs)
+            self._step += 1
+            return self._queue.popleft()
+        plan = decide(self.policy, obs, self.chunk)
         start = time.perf_counter()
+        step, self._step = self._step, self._step + 1
         if self.critic is None:
-            self.log.append(Decision(len(self.log), None, None, None, None, None, False, 0, None, time.perf_counter() - start))
-            return action
+            self.log.append(Decision(step, None, None, None, None, None, False, 0, None, time.perf_counter() - start))
+            return self._execute(plan)
         state = _state_of(obs)
         mean = std = dq = tau = None
         if len(self._scores) == self.window:  # plain Python: ~10x faster than numpy on 10 floats
@@ -196,44 +249,49 @@ class JITI:
             std = math.sqrt(math.fsum((x - mean) ** 2 for x in self._scores) / self.window)
             tau = self.threshold if self.threshold_mode == "absolute" else self.threshold * std
         if self.mode == "always":
-            candidates = self._candidates(obs, action)
+            candidates = self._candidates(obs, plan)
             scores_c = self._score(state, candidates)
             q = float(scores_c[0])
         else:
-            q = float(self._score(state, action[None])[0])
+            q = float(self._score(state, plan[None])[0])
             scores_c = None
         if mean is not None:
             dq = abs(q - mean)
         if self.mode == "jiti" and dq is not None and dq > tau:
-            candidates = self._candidates(obs, action)
+            candidates = self._candidates(obs, plan)
             scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
-        chosen, chosen_q, executed = 0, q, action
+        chosen, chosen_q, executed = 0, q, plan
         if scores_c is not None:
-            chosen = choose_candidate(scores_c, np.linalg.norm(candidates - action, axis=1), self.trust_radius)
+            distance = plan_distance(candidates)
+            chosen = choose_candidate(scores_c, distance, self.trust_radius)
             chosen_q, executed = float(scores_c[chosen]), candidates[chosen]
         self._scores.append(chosen_q)
         elapsed = time.perf_counter() - start
         self.log.append(
             Decision(
-                len(self.log), q, mean, std, dq, tau, scores_c is not None, chosen, chosen_q, elapsed,
+                step, q, mean, std, dq, tau, scores_c is not None, chosen, chosen_q, elapsed,
                 candidate_q=None if scores_c is None else [round(float(x), 4) for x in scores_c],
-                action_change=None if scores_c is None else float(np.linalg.norm(executed - action)),
+                action_change=None if scores_c is None else float(distance[chosen]),
             )
         )
-        return executed
+        return self._execute(executed)
 
-    def _candidates(self, obs: Observation, action: np.ndarray) -> np.ndarray:
-        return draw_candidates(self.policy, obs, action, self.n_candidates)
+    def _execute(self, plan: np.ndarray) -> np.ndarray:
+        self._queue.extend(plan[1:])
+        return plan[0].copy()
 
-    def _score(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        scores = np.asarray(self.critic.q(state, actions), dtype=np.float64).reshape(-1)
-        if scores.shape != (len(actions),):
-            raise ValueError(f"critic.q returned {scores.shape[0]} scores for {len(actions)} actions")
+    def _candidates(self, obs: Observation, plan: np.ndarray) -> np.ndarray:
+        return draw_candidates(self.policy, obs, plan, self.n_candidates)
+
+    def _score(self, state: np.ndarray, plans: np.ndarray) -> np.ndarray:
+        scores = np.asarray(self.critic.q(state, plans.reshape(len(plans), -1)), dtype=np.float64).reshape(-1)
+        if scores.shape != (len(plans),):
+            raise ValueError(f"critic.q returned {scores.shape[0]} scores for {len(plans)} actions")
         return scores
 
     @property
     def interventions(self) -> int:
-        """Steps of the current episode at which candidates were drawn and re-ranked."""
+        """Decisions of the current episode at which candidates were drawn and re-ranked."""
         return sum(d.intervened for d in self.log)
 
     def trace(self) -> dict[str, list]:

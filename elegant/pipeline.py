@@ -33,7 +33,9 @@ class ChainConfig:
     action; with a critic trained on a few dozen demos, unrestricted re-ranking chose far-off samples and
     success fell to 0%. `threshold` in units of the running std of Q (2.0):
     on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
-    suites' horizons.
+    suites' horizons. `chunk`: actions per decision of the BC policy (executed open-loop) and of the
+    critic that judges them; JITI then chooses among whole chunks (see `elegant.jiti`). `window`: JITI's
+    window in decisions (None: JITI's default).
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -52,12 +54,14 @@ class ChainConfig:
     threshold: float | None = 2.0
     threshold_mode: str | None = "std"
     max_steps: int | None = None
+    chunk: int = 1
+    window: int | None = None
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
         if unknown or not self.modes:
             raise UserInputError(f"chain modes {list(self.modes)}: expected some of {', '.join(MODES)}")
-        for name in ("demos", "critic_steps", "policy_epochs", "episodes"):
+        for name in ("demos", "critic_steps", "policy_epochs", "episodes", "chunk"):
             if getattr(self, name) < 1:
                 raise UserInputError(f"chain {name} must be >= 1, got {getattr(self, name)}")
         if not self.suites:
@@ -70,7 +74,7 @@ class ChainConfig:
     def jiti_settings(self, mode: str) -> dict[str, Any] | None:
         if mode == "base":
             return None
-        settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode}
+        settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window}
         return {k: v for k, v in settings.items() if v is not None}
 
 
@@ -131,10 +135,10 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     if not os.path.exists(os.path.join(critic_dir, "critic.json")):
         say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
         train_critic(list(annotated.values()), critic_dir, steps=cfg.critic_steps, seed=cfg.seed, gamma=cfg.critic_gamma,
-                     cql_weight=cfg.critic_cql_weight, reward=cfg.critic_reward, resume=True, progress=progress)
+                     cql_weight=cfg.critic_cql_weight, reward=cfg.critic_reward, chunk=cfg.chunk, resume=True, progress=progress)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
-        train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, resume=True, progress=progress)
+        train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk, resume=True, progress=progress)
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:

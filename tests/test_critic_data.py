@@ -201,3 +201,30 @@ def test_normalization_round_trips_and_guards_constant_dimensions():
     assert np.allclose(norm.actions([[2.0, 0.5]]), [[1.0, 1.0]])  # outside the data's bounds: clipped
     again = Normalization.from_dict(norm.to_dict())
     assert all(np.array_equal(getattr(again, k), getattr(norm, k)) for k in ("obs_mean", "obs_std", "action_low", "action_high"))
+
+
+def test_chunk_transitions_sum_the_chunks_penalties_and_bootstrap_after_the_chunk(annotated):
+    """chunk=4: step t's action is a_t..a_t+3 (last repeated past the end), its reward the discounted sum
+    of those steps' penalties, its next state the one after the chunk, its end flags the chunk's last step's."""
+    per_step, chunked = load_transitions([annotated], gamma=0.5), load_transitions([annotated], gamma=0.5, chunk=4)
+    one, four = per_step.transitions, chunked.transitions
+    assert chunked.chunk == 4 and four.batch_size == one.batch_size and four["action"].shape[-1] == 28
+    lengths = [len(d["actions"]) for d in read_raw(annotated)]
+    start = 0
+    for length in lengths:
+        rows = np.arange(start, start + length)
+        end = start + length - 1
+        for t in (start, end - 5, end - 2, end):
+            ahead = np.minimum(t + np.arange(4), end)
+            np.testing.assert_array_equal(four["action"][t].numpy(), one["action"][ahead].numpy().reshape(-1))
+            steps = min(4, end - t + 1)
+            reward = sum(0.5**i * float(one["next", "reward"][t + i]) for i in range(steps))
+            assert float(four["next", "reward"][t]) == pytest.approx(reward)
+            assert int(four["steps_to_next_obs"][t]) == steps
+            np.testing.assert_array_equal(four["next", "observation"][t].numpy(), one["next", "observation"][t + steps - 1].numpy())
+            for flag in ("done", "terminated", "truncated"):
+                assert bool(four["next", flag][t]) == bool(one["next", flag][t + steps - 1])
+        np.testing.assert_array_equal(four["mc_return"][rows].numpy(), one["mc_return"][rows].numpy())
+        start += length
+    with pytest.raises(UserInputError, match="chunk must be a positive integer"):
+        load_transitions([annotated], chunk=0)

@@ -193,3 +193,16 @@ def test_fused_critic_pass_matches_autograd(hidden, batch):
     assert q.grad_fn.name() != "_FusedTwinMLPBackward"
     for a, b in zip(fused, (p.grad for p in net.parameters())):
         assert torch.allclose(a, b, rtol=1e-10, atol=1e-12)
+
+
+def test_multi_step_transitions_discount_the_bootstrap_by_gamma_to_the_steps():
+    loss = action_blind(make_loss())
+    batch = make_batch()
+    batch["steps_to_next_obs"] = torch.tensor([[1], [3]] * (BATCH // 2))
+    terms = loss.terms(batch)
+    with torch.no_grad(), loss.target_qvalue_network_params.data.to_module(loss.qvalue_network):
+        next_q = loss.qvalue_network(batch["next", "observation"], torch.zeros(BATCH, 1, ACT)).amin(0).squeeze(-1)
+    reward, terminated = batch["next", "reward"].squeeze(-1), batch["next", "terminated"].squeeze(-1)
+    discount = 0.9 ** batch["steps_to_next_obs"].squeeze(-1).float()
+    assert torch.allclose(terms.target, torch.where(terminated, reward, reward + discount * next_q))
+    assert not torch.allclose(terms.target, loss.terms(make_batch()).target)

@@ -173,3 +173,24 @@ def test_refusals(trained, annotated, tmp_path):
         train_critic([annotated], run, steps=4, resume=True, **TINY)
     with pytest.raises(UserInputError, match="steps must be a positive integer"):
         train_critic([annotated], str(tmp_path / "zero"), steps=0, **TINY)
+
+
+def test_a_chunk_critic_scores_flattened_chunks_normalised_step_by_step(annotated, tmp_path):
+    from critics import action_chunks
+
+    out = str(tmp_path / "chunked")
+    summary = train_critic([annotated], out, steps=4, chunk=3, **TINY)
+    critic = load(out).bind(metadata(1))
+    assert critic.chunk == 3 and critic.network.action_dim == 21 and critic.config["chunk"] == 3
+    rng = np.random.default_rng(0)
+    state = rng.normal(size=sum(s for _, s in task_layout(1)))
+    chunks = rng.uniform(-0.5, 0.5, size=(5, 21))
+    q = critic.q(state, chunks)
+    obs = critic.normalization.observations(critic.encoder.encode(state, "libero_object/1"))
+    scaled = np.stack([critic.normalization.actions(c.reshape(3, 7)).reshape(-1) for c in chunks])
+    with torch.no_grad():
+        by_hand = critic.network(torch.from_numpy(obs)[None], torch.from_numpy(scaled)[None]).amin(0)[0]
+    assert q.shape == (5,) and np.allclose(q, by_hand.numpy(), atol=1e-5) and summary["steps"] == 4
+    assert action_chunks(np.arange(6).reshape(3, 2), 2).tolist() == [[0, 1, 2, 3], [2, 3, 4, 5], [4, 5, 4, 5]]
+    result = evaluate_critic(out, [annotated])  # held-out scoring builds each step's chunk from the demo
+    assert result["transitions"] == summary["transitions"] and 0.0 <= result["auroc"] <= 1.0

@@ -49,10 +49,10 @@ def test_a_branch_replays_the_base_episode_exactly_up_to_the_changed_action():
     env = make_env("libero_object", 0, seed=0, max_steps=16)
     monitor, policy = ITCMonitor(env), as_policy(Plunge(), seed=0)
     states = []
-    actions, _ = _rollout(env, monitor, policy, 3, 7, (), False, lambda t, obs, a: states.append(obs["state"].copy()))
+    actions, _ = _rollout(env, monitor, policy, 1, 3, 7, (), False, lambda t, obs, a: states.append(obs["state"].copy()))
     replayed = []
     changed = np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])
-    _rollout(env, monitor, policy, 3, 7, [*actions[:8], changed], False, lambda t, obs, a: replayed.append(obs["state"].copy()))
+    _rollout(env, monitor, policy, 1, 3, 7, [*actions[:8], changed], False, lambda t, obs, a: replayed.append(obs["state"].copy()))
     np.testing.assert_array_equal(np.array(replayed[:9]), np.array(states[:9]))  # identical until the change acts
     assert not np.array_equal(replayed[9], states[9])
     result = branch_episode(env, monitor, policy, HeightCritic(), 3, 7, every=5, first=2, n_candidates=3)
@@ -75,3 +75,52 @@ def test_headroom_plot_is_written_and_an_empty_result_is_refused(tmp_path):
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(UserInputError):
         plot_headroom({"episodes": [{"init_index": 0, "base_elegant": True, "points": []}]}, 0.3, tmp_path / "empty.png")
+
+
+class ChunkedPlunge(Plunge):
+    """Plunges two actions at a time; its sampled plans drift sideways by the candidate's index."""
+
+    chunk = 2
+
+    def reset(self, metadata=None, *, seed=None):
+        self.observed = 0
+
+    def plan(self, obs):
+        return np.repeat(self(obs)[None], 2, axis=0)
+
+    def sample_plans(self, obs, n):
+        plans = np.repeat(self.plan(obs)[None], n, axis=0)
+        plans[:, :, 0] = (np.arange(n) / 4.0)[:, None]
+        return plans
+
+    def sample(self, obs, n):
+        return self.sample_plans(obs, n)[:, 0]
+
+    def observe(self, obs):
+        self.observed += 1
+
+
+class ChunkHeightCritic:
+    chunk = 2
+
+    def q(self, state, chunks):
+        return state[2] - np.abs(np.asarray(chunks)[:, 0])
+
+
+@pytest.mark.sim
+def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
+    from base_suites import UserInputError
+    from elegant.headroom import intervention_headroom
+
+    env = make_env("libero_object", 0, seed=0, max_steps=12)
+    monitor, policy = ITCMonitor(env), ChunkedPlunge()
+    result = branch_episode(env, monitor, policy, ChunkHeightCritic(), 3, 7, every=4, first=2, n_candidates=3)
+    assert [p["step"] for p in result["points"]] == [2, 6]  # step 10's chunk would end the episode
+    assert policy.observed > 0  # the policy saw the steps inside its chunks
+    for point in result["points"]:
+        assert point["distance"] == pytest.approx([0.0, 0.25, 0.5])  # whole chunks moved sideways
+    actions, _ = _rollout(env, monitor, policy, 2, 3, 7, [np.zeros(7)] * 2 + list(ChunkedPlunge().sample_plans(None, 3)[2]), False)
+    env.close()
+    assert [a[0] for a in actions[:6]] == [0.0, 0.0, 0.5, 0.5, 0.0, 0.0]  # the candidate chunk, then the policy again
+    with pytest.raises(UserInputError, match="multiples of 2"):
+        intervention_headroom("libero_object", 0, ChunkedPlunge(), ChunkHeightCritic(), every=3, first=2)

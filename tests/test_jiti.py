@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from base_suites import UserInputError
-from elegant.jiti import JITI
+from elegant.jiti import JITI, plan_distance
 
 META = {"suite": "libero_object", "task_index": 0, "state_layout": [["t", 1]]}
 BASE = np.array([0.0, 0.1, -0.2, 0.0, 0.0, 0.0, -1.0])
@@ -231,3 +231,82 @@ def test_trust_radius_keeps_far_candidates_out_of_the_choice():
     assert any(d.chosen != 0 for d in free.log)
     with pytest.raises(UserInputError, match="trust_radius"):
         JITI(SamplingPolicy(), PreferPositive(), trust_radius=0.0)
+
+
+class ChunkPolicy:
+    """Decides 3 actions at a time: row i of a plan is BASE with a[1] = i / 10 (its place in the chunk);
+    candidate k of `sample_plans` has a[0] = k / 100 on every row. Records where it planned and observed."""
+
+    chunk = 3
+
+    def __init__(self):
+        self.planned, self.observed = [], []
+
+    def __call__(self, obs):
+        raise AssertionError("JITI drives a chunked policy through plan and observe")
+
+    def _plan(self):
+        plan = np.repeat(BASE[None], self.chunk, axis=0)
+        plan[:, 1] = np.arange(self.chunk) / 10.0
+        return plan
+
+    def plan(self, obs):
+        self.planned.append(int(obs["state"][0]))
+        return self._plan()
+
+    def sample_plans(self, obs, n):
+        out = np.repeat(self._plan()[None], n, axis=0)
+        out[:, :, 0] = (np.arange(n) / 100.0)[:, None]
+        return out
+
+    def sample(self, obs, n):
+        return self.sample_plans(obs, n)[:, 0]
+
+    def observe(self, obs):
+        self.observed.append(int(obs["state"][0]))
+
+    def reset(self, metadata=None, *, seed=None):
+        self.planned, self.observed = [], []
+
+
+class ChunkCritic(ScriptedCritic):
+    """Q(s, chunk) = base_q[t] + the chunk's first entry (a[0] of its first action)."""
+
+    chunk = 3
+
+
+def test_a_chunked_policy_is_decided_once_per_chunk_and_observed_in_between():
+    policy = ChunkPolicy()
+    jiti = JITI(policy, ChunkCritic([5.0] * 12), window=3, threshold=0.5)
+    actions = rollout(jiti, 12)
+    assert policy.planned == [0, 3, 6, 9] and policy.observed == [1, 2, 4, 5, 7, 8, 10, 11]
+    assert [d.step for d in jiti.log] == [0, 3, 6, 9] and jiti.interventions == 0
+    assert [a[1] for a in actions] == pytest.approx([0.0, 0.1, 0.2] * 4)  # each plan executed in order
+    assert jiti.critic.batches[0].shape == (1, 21)  # the critic scores the whole chunk, flattened
+
+
+def test_an_intervention_replaces_the_whole_chunk():
+    q = [5.0] * 12
+    q[9] = 8.0  # the jump is seen at the decision of step 9
+    jiti = JITI(ChunkPolicy(), ChunkCritic(q), window=3, threshold=0.5, n_candidates=16)
+    actions = rollout(jiti, 12)
+    assert [d.step for d in jiti.log if d.intervened] == [9]
+    assert jiti.log[-1].chosen == 15 and jiti.log[-1].action_change == pytest.approx(0.15)
+    assert [a[0] for a in actions[9:]] == pytest.approx([0.15] * 3)  # all three steps of candidate 15
+    assert [a[1] for a in actions[9:]] == pytest.approx([0.0, 0.1, 0.2])
+    assert [a[0] for a in actions[:9]] == pytest.approx([0.0] * 9)
+
+
+def test_a_critic_of_another_chunk_length_is_refused():
+    with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 3.*--chunk 3"):
+        JITI(ChunkPolicy(), ScriptedCritic([5.0]))
+    with pytest.raises(UserInputError, match="chunks of 3 actions but the policy decides 1"):
+        JITI(SamplingPolicy(), ChunkCritic([5.0]))
+
+
+def test_plan_distance_is_the_rms_over_the_chunk_of_the_per_step_distance():
+    candidates = np.zeros((3, 2, 7))
+    candidates[1, 0, 0] = 1.0  # one step moved by 1, the other not
+    candidates[2, :, :2] = 0.6  # both steps moved by 0.6 * sqrt(2)
+    assert plan_distance(candidates) == pytest.approx([0.0, np.sqrt(0.5), 0.6 * np.sqrt(2)])
+    assert plan_distance(candidates[:, :1]) == pytest.approx([0.0, 1.0, 0.6 * np.sqrt(2)])  # chunk 1: plain L2

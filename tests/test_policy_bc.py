@@ -213,3 +213,52 @@ def test_training_refuses_bad_input(demos, tmp_path):
     clash = write_demos(tmp_path / "clash.hdf5", demos_per_task=1, steps=3, layouts=other)
     with pytest.raises(UserInputError, match=r"state_layouts\['libero_object/1'\] differs"):
         train_policy([demos, clash], str(tmp_path / "x"), epochs=1, progress=False)
+
+
+def test_chunk_targets_are_the_next_actions_with_the_last_repeated_past_the_end():
+    from annotations import TaskFeatureEncoder
+    from elegant.policies.bc_data import DemoSet, Episode
+    from elegant.policies.bc_features import BCFeatures
+    from elegant.policies.bc_train import _Windows
+
+    layout = {"libero_object/1": LAYOUTS["libero_object/1"]}
+    actions = np.arange(35, dtype=np.float32).reshape(5, 7)
+    data = DemoSet(layout, [Episode("libero_object/1", np.zeros((5, 5)), actions)])
+    stats = {"libero_object/1": {"mean": np.zeros(5), "std": np.ones(5)}}
+    windows = _Windows(data, BCFeatures(TaskFeatureEncoder(layout), stats, history=2), chunk=3)
+    _, targets = windows.batch(torch.tensor([0, 3, 4]))
+    expected = np.stack([actions[[0, 1, 2]], actions[[3, 4, 4]], actions[[4, 4, 4]]]).reshape(3, 21)
+    np.testing.assert_array_equal(targets.numpy(), expected)
+
+
+def test_a_chunked_policy_decides_every_chunk_steps_and_still_fits_the_expert(demos, tmp_path):
+    out = str(tmp_path / "chunked")
+    train_policy([demos], out, epochs=40, lr=1e-2, seed=0, chunk=3, **SMALL)
+    policy = load_policy(out)
+    assert policy.chunk == 3 and json.load(open(os.path.join(out, "config.json")))["model"]["action_dim"] == 21
+    assert fit_error(policy) < 0.05
+    key, rng = "libero_object/0", np.random.default_rng(1)
+    observations = [{"state": rng.uniform(-0.4, 0.4, 8)} for _ in range(6)]
+    policy.reset(metadata(key), seed=0)
+    executed = [policy(obs) for obs in observations]
+    policy.reset(metadata(key), seed=0)
+    first = policy.plan(observations[0])
+    candidates = policy.sample_plans(observations[0], 16)  # does not step the history again
+    policy.observe(observations[1]), policy.observe(observations[2])
+    second = policy.plan(observations[3])
+    np.testing.assert_array_equal(np.array(executed), np.concatenate([first, second[:3]]))
+    assert first.shape == (3, 7) and candidates.shape == (16, 3, 7) and np.abs(candidates).max() <= 1.0
+    assert policy.sample(observations[3], 4).shape == (4, 7)
+
+
+def test_a_policy_saved_before_chunking_loads_as_one_action_per_decision(policy_dir, tmp_path):
+    old = tmp_path / "old"
+    old.mkdir()
+    config = json.load(open(os.path.join(policy_dir, "config.json")))
+    del config["model"]["chunk"]
+    (old / "config.json").write_text(json.dumps(config))
+    (old / "model.pt").write_bytes(open(os.path.join(policy_dir, "model.pt"), "rb").read())
+    policy = load_policy(str(old))
+    assert policy.chunk == 1
+    policy.reset(metadata("libero_object/1"))
+    assert policy.plan({"state": np.zeros(5)}).shape == (1, 7)

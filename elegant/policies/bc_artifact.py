@@ -1,6 +1,6 @@
 """The trained BC policy on disk: `model.pt` (a plain state_dict) and `config.json` (everything else).
 
-config.json holds the network shape, the input definition (task encoder with every task's state layout,
+config.json holds the network shape (with `chunk`, the number of actions each decision predicts), the input definition (task encoder with every task's state layout,
 per-task normalisation, history length), training facts and library versions, plus the SHA-256 of
 model.pt so that a pair written by different runs (an interrupted overwrite) is refused instead of
 producing nonsense actions. Both files are written atomically.
@@ -21,6 +21,7 @@ from base_suites.atomic import atomic_write, library_versions, read_artifact_con
 from base_suites.errors import UserInputError
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
+from elegant.policies.protocol import ACTION_DIM
 
 ARTIFACT_FORMAT = "libero-elegant-bc/1"
 MODEL_FILE = "model.pt"
@@ -60,6 +61,7 @@ def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
     try:
         features = BCFeatures.from_dict(config["features"])
         spec = config["model"]
+        spec.setdefault("chunk", 1)  # policies written before action chunking decide one action at a time
         net = BCNet(spec["input_dim"], hidden=spec["hidden"], action_dim=spec["action_dim"], modes=spec["modes"], min_std=spec["min_std"])
         net.load_state_dict(torch.load(io.BytesIO(payload), weights_only=True))
     except KeyError as exc:
@@ -68,5 +70,7 @@ def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
         raise UserInputError(f"{model_path}: cannot be loaded into the network config.json describes ({str(exc).splitlines()[0]})") from None
     if features.input_dim != spec["input_dim"]:
         raise UserInputError(f"{config_path}: model.input_dim {spec['input_dim']} disagrees with the features ({features.input_dim})")
+    if spec["action_dim"] != ACTION_DIM * spec["chunk"]:
+        raise UserInputError(f"{config_path}: model.action_dim {spec['action_dim']} is not {ACTION_DIM} x model.chunk {spec['chunk']}")
     net.eval()
     return net, features, config

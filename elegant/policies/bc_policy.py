@@ -4,6 +4,11 @@ The action is the mean of the mixture's most likely component (LIBERO evaluates 
 little or no noise), so evaluation is deterministic; `sample` draws from the full mixture with a seeded
 generator, which is what JITI asks for at critical moments. Plain torch modules under
 `torch.inference_mode` keep one decision well under a millisecond on one CPU thread.
+
+A policy trained with `chunk` > 1 decides a chunk of actions at once (`plan`), executes it open-loop and
+decides again when it is used up; between decisions it still sees every observation (`observe`), so its
+history window is the same as a per-step policy's. `sample_plans` draws whole chunks from the mixture:
+each is one coherent way to carry on (a mode of the demonstrations), not one jittered step.
 """
 from __future__ import annotations
 
@@ -18,15 +23,16 @@ from base_suites.errors import UserInputError
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet, gmm_mode, gmm_sample
-from elegant.policies.protocol import Observation, check_count
+from elegant.policies.protocol import ACTION_DIM, Observation, check_count
 
 
 class BCPolicy:
-    """A `Policy` over the env's low-dimensional state (see module docstring).
+    """A `ChunkedPolicy` over the env's low-dimensional state (see module docstring); with `chunk` 1 it
+    decides every step.
 
-    Call `reset(env.metadata)` at the start of each episode: it clears the history, selects the task and
-    refuses an env whose observation layout differs from the training data. A single-task policy also
-    works without metadata, checking only the state width.
+    Call `reset(env.metadata)` at the start of each episode: it clears the history and the action queue,
+    selects the task and refuses an env whose observation layout differs from the training data. A
+    single-task policy also works without metadata, checking only the state width.
     """
 
     def __init__(self, net: BCNet, features: BCFeatures, *, path: str = "policy", seed: int = 0, config: Mapping[str, Any] | None = None) -> None:
@@ -34,8 +40,10 @@ class BCPolicy:
         self.features = features
         self.path = path
         self.config = dict(config or {})
+        self.chunk = int(self.config.get("model", {}).get("chunk", 1))
         self.generator = torch.Generator()
         self._window: deque[np.ndarray] = deque(maxlen=features.history)
+        self._queue: deque[np.ndarray] = deque()
         self._last_state: np.ndarray | None = None
         self.task: str | None = None
         self.reset(seed=seed)
@@ -46,6 +54,7 @@ class BCPolicy:
 
     def reset(self, metadata: Mapping[str, Any] | None = None, *, seed: int | None = None) -> None:
         self._window.clear()
+        self._queue.clear()
         self._last_state = None
         if metadata is not None:
             self.task = self.features.encoder.check_env(metadata, self.path)
@@ -78,21 +87,43 @@ class BCPolicy:
         window = torch.from_numpy(np.stack(self._window)).unsqueeze(0)
         return self.net(self.features.flatten_window(window))
 
-    def __call__(self, obs: Observation) -> np.ndarray:
-        self._push(self._state(obs))
-        with torch.inference_mode():
-            logits, means, _ = self._distribution()
-            return gmm_mode(logits, means)[0].double().numpy()
-
-    def sample(self, obs: Observation, n: int) -> np.ndarray:
-        """n actions drawn from the mixture for this step; does not step the history again right after `__call__(obs)`."""
-        n = check_count(n)
+    def _see(self, obs: Observation) -> None:
+        """Step the history with `obs` unless it is the observation seen last (a second call for one step)."""
         state = self._state(obs)
         if self._last_state is None or not np.array_equal(self._last_state, state):
             self._push(state)
+
+    def __call__(self, obs: Observation) -> np.ndarray:
+        """The next action: the first of a new `plan` when the last chunk is used up, else the chunk's next."""
+        if self._queue:
+            self.observe(obs)
+        else:
+            self._queue.extend(self.plan(obs))
+        return self._queue.popleft()
+
+    def observe(self, obs: Observation) -> None:
+        """See an observation at which no decision is taken (inside a chunk)."""
+        self._push(self._state(obs))
+
+    def plan(self, obs: Observation) -> np.ndarray:
+        """The decision at `obs`: (chunk, 7) actions, the mean of the mixture's most likely component."""
+        self._push(self._state(obs))
+        with torch.inference_mode():
+            logits, means, _ = self._distribution()
+            return gmm_mode(logits, means)[0].double().numpy().reshape(self.chunk, ACTION_DIM)
+
+    def sample_plans(self, obs: Observation, n: int) -> np.ndarray:
+        """n chunks (n, chunk, 7) drawn from the mixture for the decision at `obs`; does not step the history
+        again right after `plan(obs)` or `__call__(obs)`."""
+        n = check_count(n)
+        self._see(obs)
         with torch.inference_mode():
             logits, means, stds = self._distribution()
-            return gmm_sample(logits, means, stds, n, self.generator).double().numpy()
+            return gmm_sample(logits, means, stds, n, self.generator).double().numpy().reshape(n, self.chunk, ACTION_DIM)
+
+    def sample(self, obs: Observation, n: int) -> np.ndarray:
+        """n actions for this step: the first actions of n sampled plans (`sample_plans`)."""
+        return self.sample_plans(obs, n)[:, 0]
 
 
 def load_policy(path: str, *, seed: int = 0) -> BCPolicy:

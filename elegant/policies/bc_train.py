@@ -54,9 +54,10 @@ class BCConfig:
     min_std: float = 1e-4
     obs_min_std: float = 1e-2
     grad_clip: float = 100.0
+    chunk: int = 1
 
     def validate(self) -> None:
-        positive = {"epochs": self.epochs, "history": self.history, "batch_size": self.batch_size, "modes": self.modes}
+        positive = {"epochs": self.epochs, "history": self.history, "batch_size": self.batch_size, "modes": self.modes, "chunk": self.chunk}
         for name, value in positive.items():
             if int(value) != value or value < 1:
                 raise UserInputError(f"train_policy: {name} must be a positive integer, got {value!r}")
@@ -71,19 +72,27 @@ class BCConfig:
 
 
 class _Windows:
-    """All encoded states in one tensor; a batch's history windows are gathered by index."""
+    """All encoded states in one tensor; a batch's history windows and action chunks are gathered by index.
 
-    def __init__(self, data: DemoSet, features: BCFeatures) -> None:
-        encoded, starts = [], []
+    The target of step t is the chunk of actions t .. t + chunk - 1 of its demo, flattened; a chunk that
+    runs past the demo's end repeats its last action (the robot holding still), as diffusion-policy and
+    ACT style chunking pad, so every step of every demo stays a training sample.
+    """
+
+    def __init__(self, data: DemoSet, features: BCFeatures, chunk: int = 1) -> None:
+        encoded, starts, ends = [], [], []
         offset = 0
         for episode in data.episodes:
             encoded.append(features.encode(episode.states, episode.task))
             starts.append(np.full(len(episode.states), offset))
+            ends.append(np.full(len(episode.states), offset + len(episode.states) - 1))
             offset += len(episode.states)
         self.encoded = torch.from_numpy(np.concatenate(encoded))
         self.starts = torch.from_numpy(np.concatenate(starts))
+        self.ends = torch.from_numpy(np.concatenate(ends))
         self.actions = torch.from_numpy(np.concatenate([e.actions for e in data.episodes]))
         self.back = torch.arange(features.history - 1, -1, -1)
+        self.ahead = torch.arange(int(chunk))
         self.features = features
 
     def __len__(self) -> int:
@@ -91,7 +100,8 @@ class _Windows:
 
     def batch(self, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         rows = torch.maximum(index[:, None] - self.back, self.starts[index][:, None])
-        return self.features.flatten_window(self.encoded[rows]), self.actions[index]
+        targets = torch.minimum(index[:, None] + self.ahead, self.ends[index][:, None])
+        return self.features.flatten_window(self.encoded[rows]), self.actions[targets].flatten(1)
 
 
 def _save_checkpoint(path: str, state: dict[str, Any]) -> None:
@@ -174,6 +184,7 @@ def train_policy(
     min_std: float = 1e-4,
     obs_min_std: float = 1e-2,
     grad_clip: float = 100.0,
+    chunk: int = 1,
     progress: bool = True,
     on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
     tasks: Sequence[str] | None = None,
@@ -182,6 +193,10 @@ def train_policy(
     snapshot_epochs: Collection[int] = (),
 ) -> dict[str, Any]:
     """Train a BC-GMM policy on the demos in `paths` and write it to the directory `out`.
+
+    `chunk` > 1 trains the policy to predict that many future actions at once (one GMM over the flattened
+    chunk) and to execute them open-loop, as the action chunks of VLA policies: a sample of the mixture is
+    then a coherent sub-trajectory, which is what JITI chooses among (see `BCPolicy`).
 
     Returns a dict: out, epochs, resumed_from_epoch, loss_history (mean training NLL per epoch), final_nll,
     num_demos, num_samples, tasks, seconds. `on_epoch_end` receives {"epoch", "nll"} after each epoch's
@@ -194,7 +209,7 @@ def train_policy(
     `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
     resumed checkpoint must match.
     """
-    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip)
+    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip, chunk)
     cfg.validate()
     snapshots = set(snapshot_epochs)
     if any(int(e) != e or not 0 <= e <= cfg.epochs for e in snapshots):
@@ -212,12 +227,13 @@ def train_policy(
         "init_from": None if init is None else {"model_sha256": init[2]["model_sha256"]},
     }
     features = _input_features(data, cfg, features, init, init_from)
-    windows = _Windows(data, features)
-    model_spec = {"input_dim": features.input_dim, "hidden": list(cfg.hidden), "action_dim": ACTION_DIM, "modes": cfg.modes, "min_std": cfg.min_std}
+    windows = _Windows(data, features, cfg.chunk)
+    model_spec = {"input_dim": features.input_dim, "hidden": list(cfg.hidden), "action_dim": ACTION_DIM * cfg.chunk, "modes": cfg.modes,
+                  "min_std": cfg.min_std, "chunk": cfg.chunk}
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
-        net = BCNet(features.input_dim, hidden=cfg.hidden, modes=cfg.modes, min_std=cfg.min_std)
+        net = BCNet(features.input_dim, hidden=cfg.hidden, action_dim=ACTION_DIM * cfg.chunk, modes=cfg.modes, min_std=cfg.min_std)
     if init is not None:
         _start_from(net, init, model_spec, init_from)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)

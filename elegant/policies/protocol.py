@@ -41,6 +41,37 @@ class Policy(Protocol):
     def reset(self, metadata: Mapping[str, Any] | None = None, *, seed: int | None = None) -> None: ...
 
 
+@runtime_checkable
+class ChunkedPolicy(Policy, Protocol):
+    """A policy that decides `chunk` actions at a time and executes them open-loop (action chunking, as
+    VLA policies such as pi0, SmolVLA and OpenVLA-OFT do).
+
+    `plan(obs)` is the decision at `obs`: (chunk, 7) actions, the first for this step. `sample_plans(obs, n)`
+    returns n alternative chunks (n, chunk, 7) for the same decision, without stepping the policy again
+    right after `plan(obs)`. `observe(obs)` shows the policy an observation at which it takes no decision
+    (inside a chunk), so a history window stays complete. `__call__` executes plans one action per step.
+    JITI decides among whole chunks of such a policy, with a critic trained on chunks of the same length.
+    """
+
+    chunk: int
+
+    def plan(self, obs: Observation) -> np.ndarray: ...
+
+    def sample_plans(self, obs: Observation, n: int) -> np.ndarray: ...
+
+    def observe(self, obs: Observation) -> None: ...
+
+
+def chunk_of(policy: Any) -> int:
+    """How many actions one decision of `policy` commits to (1 unless it is a `ChunkedPolicy`)."""
+    chunk = int(getattr(policy, "chunk", 1))
+    if chunk > 1 and not isinstance(policy, ChunkedPolicy):
+        raise UserInputError(f"{type(policy).__name__} has chunk={chunk} but lacks plan, sample_plans or observe (see ChunkedPolicy)")
+    if chunk < 1:
+        raise UserInputError(f"{type(policy).__name__}.chunk must be >= 1, got {chunk}")
+    return chunk
+
+
 def as_action(value: Any, source: str = "policy") -> np.ndarray:
     """One action as a float64 (7,) array clipped to the action bounds; refuse any other shape."""
     action = np.asarray(value, dtype=np.float64).reshape(-1)
