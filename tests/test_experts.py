@@ -12,10 +12,10 @@ from itc import ITCWrapper
 pytestmark = pytest.mark.sim
 
 
-def _solve(suite, task, init=0, quality="clean", episode=0):
+def _solve(suite, task, init=0, quality="clean", episode=0, reset_seed=None):
     """Run the expert for one episode under the ITC monitor; returns (success, expert, ITC verdict)."""
     env = ITCWrapper(make_env(suite, task, seed=0))
-    obs, _ = env.reset(options={"init_state": init})
+    obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
     expert = ScriptedExpert(env.unwrapped, quality=quality, seed=0)
     expert.reset(env.unwrapped.metadata, episode=episode)
     info = {"success": False}
@@ -59,9 +59,14 @@ def test_an_object_under_the_opened_drawer_is_moved_clear_first():
     env0.close()
 
 
-def test_drop_knob_releases_from_height_and_is_recorded():
-    success, expert, _ = _solve("libero_object", 3, quality={"drop": 1.0})
+@pytest.mark.parametrize("suite, task, reset_seed", [("libero_object", 3, None), ("libero_goal", 4, 1874364848)])
+def test_drop_knob_releases_from_height_and_is_recorded(suite, task, reset_seed):
+    """Released at carrying height, the object's bottom hung exactly the carry margin (5 cm) over the
+    cabinet top of libero_goal/4 (the label benchmark's demo 40, reset seed 1874364848), the ITC's own
+    drop limit, so the "drop" was not one; the knob now lets go twice that high above what lies below."""
+    success, expert, verdict = _solve(suite, task, quality={"drop": 1.0}, reset_seed=reset_seed)
     assert expert.knobs["drop"] and "drop" in expert.events
+    assert "collision" in verdict["violated"] and any("dropped" in e[-1] for e in verdict["events"]), verdict
 
 
 def test_misplace_sets_the_object_down_beside_its_container_and_is_recorded_at_the_release():

@@ -134,6 +134,9 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
 
 
 MISPLACE_OFFSET = (0.05, 0.08)  # the misplace knob sets objects down this far from their goal spot (m)
+# The drop knob lets go with the object's bottom this high above what lies below (m): twice the ITC's
+# 5 cm drop limit. The carrying height alone leaves only its 5 cm margin over a tall target.
+DROP_CLEARANCE = 0.10
 MISPLACE_CLEARANCE = 0.015  # ... or this far clear of the container the goal region belongs to
 
 
@@ -187,6 +190,9 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     if carry_rot is not upright:
         yield from ctx.goto(view.eef_position(), upright, CLOSE, tol=0.02, rot_tol=0.06, max_steps=40)
     if "drop" in ctx.knobs and isinstance(target, str):
+        release_z = carry_height(view, obj, goal_xy, margin=DROP_CLEARANCE)
+        if view.eef_position()[2] < release_z:
+            yield from ctx.goto(_above(view.eef_position(), release_z), upright, CLOSE, tol=0.015, rot_tol=0.1, max_steps=40)
         ctx.events.extend(["misplace", "drop"] if misplaced else ["drop"])
         yield from ctx.hold(OPEN, 10)
         yield from ctx.hold(OPEN, 10)
