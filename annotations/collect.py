@@ -1,4 +1,5 @@
-"""Demonstration collection: scripted experts rolled out in the real env, written as LIBERO-layout HDF5.
+"""Episode collection in the real env, written as LIBERO-layout HDF5: scripted-expert demonstrations here,
+policy rollouts (`elegant.rollouts`) through the same `collect_episodes`.
 
 Episode i of a task starts from shipped init state i (mod 50), and its quality knobs come from
 (seed, task, i), so a collection interrupted and resumed produces exactly the file an uninterrupted
@@ -6,8 +7,8 @@ run would have.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -39,6 +40,112 @@ def dataset_attrs(env: LiberoEnv, suite: str, tasks: Sequence[int]) -> dict[str,
     }
 
 
+class EpisodeSource(Protocol):
+    """What `collect_episodes` rolls out: per task, an actor for its episodes and where each one starts."""
+
+    def for_task(self, env: LiberoEnv, spec: Any) -> None:
+        """Get ready for the episodes of one task (its env is built)."""
+
+    def start(self, spec: Any, episode: int) -> tuple[int, int]:
+        """(init-state index, env reset seed) of an episode: a function of the episode, so resuming rebuilds it."""
+
+    def begin(self, env: LiberoEnv, episode: int, reset_seed: int) -> None:
+        """Reset the actor for an episode (the env has just been reset)."""
+
+    def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray: ...
+
+    def episode_attrs(self) -> dict[str, Any]:
+        """Attributes to store with the finished episode (knobs, policy settings, ...)."""
+
+
+def collect_episodes(
+    suite: str,
+    tasks: Sequence[int] | None,
+    episodes: int,
+    out: str,
+    source: EpisodeSource,
+    *,
+    seed: int,
+    horizon: Callable[[Any], int],
+    resume: bool = False,
+    progress: bool = True,
+    desc: str = "episodes",
+) -> str:
+    """Roll `source` out `episodes` times per task (None: all ten) and write them to `out` in the demo
+    layout: appended to `out.partial` as each finishes, renamed to `out` when all are there; `resume`
+    continues an interrupted file. `horizon(spec)` is each task's episode limit. Returns the path."""
+    from tqdm import tqdm
+
+    if episodes <= 0:
+        raise UserInputError(f"--episodes must be positive, got {episodes}")
+    specs = [get_task(suite, t) for t in (tasks if tasks is not None else range(10))]
+    writer: DemoWriter | None = None
+    bar = tqdm(total=len(specs) * episodes, desc=f"{desc} {suite}", disable=not progress, unit="ep")
+    try:
+        for task_pos, spec in enumerate(specs):
+            env = make_env(suite, spec.index, seed=seed, max_steps=horizon(spec))
+            if writer is None:
+                writer = DemoWriter(out, dataset_attrs(env, suite, [s.index for s in specs]), resume=resume)
+            done_before = writer.count
+            source.for_task(env, spec)
+            for i in range(episodes):
+                if task_pos * episodes + i < done_before:
+                    bar.update(1)
+                    continue
+                init, reset_seed = source.start(spec, i)
+                obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
+                layout = env.fixture_layout()
+                source.begin(env, i, reset_seed)
+                record = record_episode(env, source, obs)
+                demo = Demo(
+                    name="", actions=record["actions"], states=record["states"], obs=record["obs"],
+                    next_obs=record["next_obs"], rewards=record["rewards"], dones=record["dones"],
+                    attrs={
+                        "suite": suite, "task_index": spec.index, "task_name": spec.name,
+                        "language_instruction": env.instruction, "init_state_index": init, "seed": seed,
+                        "episode": i, "success": record["success"], "perturbation": record["perturbation"],
+                        "reset_seed": reset_seed, "fixture_layout": layout, **source.episode_attrs(),
+                    },
+                )
+                writer.append(demo, env.metadata["state_layout"])
+                bar.update(1)
+            env.close()
+        return writer.finish() if writer is not None else out
+    except BaseException:
+        if writer is not None:
+            writer.abandon()
+        raise
+    finally:
+        bar.close()
+
+
+class _ExpertSource:
+    """The scripted expert: episode i starts from init state i (mod 50), knobs from (seed, task, i)."""
+
+    def __init__(self, quality: str | Mapping[str, float], seed: int) -> None:
+        self.quality, self.seed = quality, seed
+
+    def for_task(self, env: LiberoEnv, spec: Any) -> None:
+        from base_suites.experts import ScriptedExpert
+
+        self.expert = ScriptedExpert(env, quality=self.quality, seed=derive_seed(self.seed, spec.index))
+
+    def start(self, spec: Any, episode: int) -> tuple[int, int]:
+        # A reset seed per (seed, task, episode): a resumed collection rebuilds the same scenes.
+        return episode % spec.n_init_states, derive_seed(self.seed, spec.index, episode)
+
+    def begin(self, env: LiberoEnv, episode: int, reset_seed: int) -> None:
+        self.expert.reset(env.metadata, episode=episode)
+
+    def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        return self.expert(obs)
+
+    def episode_attrs(self) -> dict[str, Any]:
+        from base_suites.experts import EXPERT_VERSION
+
+        return {"knobs": dict(self.expert.knobs), "knob_events": list(self.expert.events), "expert_version": EXPERT_VERSION}
+
+
 def collect_demos(
     suite: str,
     tasks: Sequence[int] | None,
@@ -54,65 +161,18 @@ def collect_demos(
 
     Returns a summary: demos written, success rate, per-knob rates, per-task success.
     """
-    from tqdm import tqdm
+    from base_suites.experts import knob_rates
 
-    from base_suites.experts import EXPERT_VERSION, ScriptedExpert, knob_rates
-
-    if episodes <= 0:
-        raise UserInputError(f"--episodes must be positive, got {episodes}")
     knob_rates(quality)  # validate before any work
-    specs = [get_task(suite, t) for t in (tasks if tasks is not None else range(10))]
-    writer: DemoWriter | None = None
-    total = len(specs) * episodes
-    bar = tqdm(total=total, desc=f"demos {suite}", disable=not progress, unit="ep")
-    summary: dict[str, Any] = {"out": out, "per_task": {}}
-    try:
-        for task_pos, spec in enumerate(specs):
-            # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
-            env = make_env(suite, spec.index, seed=seed, max_steps=DEMO_HORIZON_FACTOR * spec.default_max_steps)
-            if writer is None:
-                writer = DemoWriter(out, dataset_attrs(env, suite, [s.index for s in specs]), resume=resume)
-            done_before = writer.count
-            expert = ScriptedExpert(env, quality=quality, seed=derive_seed(seed, spec.index))
-            for i in range(episodes):
-                global_index = task_pos * episodes + i
-                if global_index < done_before:
-                    bar.update(1)
-                    continue
-                init = i % spec.n_init_states
-                # A reset seed per (seed, task, episode): a resumed collection rebuilds the same scenes.
-                reset_seed = derive_seed(seed, spec.index, i)
-                obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
-                layout = env.fixture_layout()
-                expert.reset(env.metadata, episode=i)
-                record = record_episode(env, expert, obs)
-                demo = Demo(
-                    name="", actions=record["actions"], states=record["states"], obs=record["obs"],
-                    next_obs=record["next_obs"], rewards=record["rewards"], dones=record["dones"],
-                    attrs={
-                        "suite": suite, "task_index": spec.index, "task_name": spec.name,
-                        "language_instruction": env.instruction, "init_state_index": init, "seed": seed,
-                        "episode": i, "knobs": {k: v for k, v in expert.knobs.items()},
-                        "knob_events": list(expert.events), "expert_version": EXPERT_VERSION,
-                        "success": record["success"], "perturbation": record["perturbation"],
-                        "reset_seed": reset_seed, "fixture_layout": layout,
-                    },
-                )
-                writer.append(demo, env.metadata["state_layout"])
-                bar.update(1)
-            env.close()
-        path = writer.finish() if writer is not None else out
-    except BaseException:
-        if writer is not None:
-            writer.abandon()
-        raise
-    finally:
-        bar.close()
+    # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
+    path = collect_episodes(suite, tasks, episodes, out, _ExpertSource(quality, seed), seed=seed, resume=resume, progress=progress,
+                            horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps, desc="demos")
     from annotations.dataset import DemoFile
 
     with DemoFile(path) as f:
         demos = list(f)
     knobs = [d.attrs["knobs"] for d in demos]
+    summary: dict[str, Any] = {"out": out, "per_task": {}}
     summary.update(
         demos=len(demos),
         success_rate=float(np.mean([d.attrs["success"] for d in demos])),

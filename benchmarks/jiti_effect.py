@@ -60,6 +60,7 @@ def main() -> None:
     parser.add_argument("--max-steps", type=int)
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy and the critic")
     parser.add_argument("--window", type=int, help="JITI's window in decisions (default: JITI's)")
+    parser.add_argument("--policy-modes", type=int, default=5, help="components of the BC policy's GMM head")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     config = ChainConfig(
@@ -67,7 +68,7 @@ def main() -> None:
         demos=args.demos, critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
         critic_cql_weight=args.critic_cql_weight, critic_reward=args.critic_reward, policy_epochs=args.policy_epochs,
         episodes=args.episodes, modes=("base", "always", "jiti"), seed=args.seed, trust_radius=args.trust_radius,
-        threshold=args.threshold, threshold_mode=args.threshold_mode, max_steps=args.max_steps, chunk=args.chunk, window=args.window,
+        threshold=args.threshold, threshold_mode=args.threshold_mode, max_steps=args.max_steps, chunk=args.chunk, window=args.window, policy_modes=args.policy_modes,
     )
     result = run_chain(args.out, config)
     table = verdicts(result)

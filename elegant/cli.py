@@ -66,6 +66,22 @@ def _task_list(text: str | None) -> list[int] | None:
         raise UserInputError(f"--tasks {text!r}: expected comma-separated task indices, e.g. 0,3") from None
 
 
+def _index_list(text: str | None, flag: str) -> list[int] | None:
+    """'0-24' or '0,3,5-9' -> the listed indices (None stays None)."""
+    from base_suites.errors import UserInputError
+
+    if text is None:
+        return None
+    try:
+        out = []
+        for part in (p.strip() for p in text.split(",") if p.strip()):
+            low, _, high = part.partition("-")
+            out += list(range(int(low), int(high) + 1)) if high else [int(low)]
+        return out
+    except ValueError:
+        raise UserInputError(f"{flag} {text!r}: expected indices and ranges, e.g. 0-24 or 0,3,5-9") from None
+
+
 def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all 10)")
@@ -83,6 +99,29 @@ def _demos(args: argparse.Namespace) -> dict:
 
     return collect_demos(args.suite, _task_list(args.tasks), args.episodes, args.out, quality=parse_quality(args.quality),
                          seed=args.seed, resume=args.resume)
+
+
+def _rollouts_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--suite", required=True)
+    p.add_argument("--tasks", help="comma-separated task indices (default: all 10)")
+    p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
+    p.add_argument("--episodes", type=int, default=50, help="episodes per task")
+    p.add_argument("--explore", type=float, default=0.0, help="fraction of decisions given a random candidate within the trust radius")
+    p.add_argument("--trust-radius", type=float, default=0.3)
+    p.add_argument("--init-states", help="start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)")
+    p.add_argument("--max-steps", type=int)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")
+    p.add_argument("--resume", action="store_true", help="continue OUT.partial")
+
+
+@command("rollouts", "record a policy's episodes (optionally exploring) as a demo-layout HDF5 for annotation and critic training")(_rollouts_args)
+def _rollouts(args: argparse.Namespace) -> dict:
+    from elegant.rollouts import collect_rollouts
+
+    return collect_rollouts(args.suite, _task_list(args.tasks), args.policy, args.episodes, args.out, explore=args.explore,
+                            trust_radius=args.trust_radius, init_states=_index_list(args.init_states, "--init-states"),
+                            seed=args.seed, max_steps=args.max_steps, resume=args.resume)
 
 
 def _import_args(p: argparse.ArgumentParser) -> None:
@@ -142,6 +181,7 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--history", type=int, default=10, help="states stacked as input")
     p.add_argument("--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)")
+    p.add_argument("--modes", type=int, default=5, help="components of the GMM action head")
     p.add_argument("--resume", action="store_true")
 
 
@@ -150,7 +190,7 @@ def _train_policy(args: argparse.Namespace) -> dict:
     from elegant.policies import train_policy
 
     summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
-                           batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk)
+                           batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk, modes=args.modes)
     summary.pop("loss_history", None)
     return summary
 
@@ -186,7 +226,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
     p.add_argument("--critic", help="critic directory (from train-critic); required for jiti and always")
-    p.add_argument("--mode", choices=("jiti", "always", "base"), default="jiti")
+    p.add_argument("--mode", choices=("jiti", "always", "base", "random"), default="jiti")
     p.add_argument("--episodes", type=int, default=10, help="episodes per task")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="run directory")
@@ -199,6 +239,8 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--candidates", type=int, dest="n_candidates")
     p.add_argument("--noise-scale", type=float)
     p.add_argument("--trust-radius", type=float, help="only candidates within this L2 distance of the base action may be chosen")
+    p.add_argument("--random-rate", type=float, help="mode random: the fraction of decisions given a random eligible candidate")
+    p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
 
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
@@ -208,7 +250,7 @@ def _eval(args: argparse.Namespace) -> dict:
     jiti_kwargs = {k: getattr(args, k) for k in JITI_SETTINGS if getattr(args, k, None) is not None}
     summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
                        seed=args.seed, out=args.out, resume=args.resume, perturbation=args.perturbation,
-                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps)
+                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=_index_list(args.init_states, "--init-states"))
     return {k: v for k, v in summary.items() if k != "per_task"}
 
 

@@ -34,20 +34,33 @@ from elegant.jiti import JITI
 from elegant.metrics import summarize
 from elegant.report import write_run_report
 
-JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius")
+JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius", "random_rate")
 
 
-def episode_start(seed: int, suite: str, task_index: int, episode: int, n_init_states: int) -> tuple[int, int]:
+def episode_start(seed: int, suite: str, task_index: int, episode: int, n_init_states: int,
+                  init_states: Sequence[int] | None = None) -> tuple[int, int]:
     """(init-state index, env reset seed) of episode `episode` of a task.
 
-    The init states are visited in a seeded permutation per task, so the first n episodes use n distinct
-    starts (as LIBERO's 50-episode protocol does); the reset seed drives per-episode randomness such as
+    The init states (all `n_init_states`, or only `init_states`, e.g. those a critic's rollouts did not
+    use) are visited in a seeded permutation per task, so the first n episodes use n distinct starts (as
+    LIBERO's 50-episode protocol does); the reset seed drives per-episode randomness such as
     perturbation placements. Neither depends on the mode or on the other episodes.
     """
+    pool = check_init_states(init_states, n_init_states)
     task = zlib.crc32(task_key(suite, task_index).encode())
-    order = np.random.default_rng([int(seed), task]).permutation(int(n_init_states))
+    order = np.random.default_rng([int(seed), task]).permutation(len(pool))
     reset_seed = derive_seed(seed, task, episode)
-    return int(order[int(episode) % int(n_init_states)]), reset_seed
+    return pool[int(order[int(episode) % len(pool)])], reset_seed
+
+
+def check_init_states(init_states: Sequence[int] | None, n_init_states: int) -> list[int]:
+    """The init-state indices to draw starts from (all by default), refusing an empty or out-of-range set."""
+    if init_states is None:
+        return list(range(int(n_init_states)))
+    pool = sorted({int(i) for i in init_states})
+    if not pool or pool[0] < 0 or pool[-1] >= n_init_states:
+        raise UserInputError(f"init states {list(init_states)}: expected indices in 0..{n_init_states - 1}")
+    return pool
 
 
 def _describe(obj: Any) -> str | None:
@@ -174,9 +187,11 @@ def evaluate(
     *,
     max_steps: int | None = None,
     obs: str = "lowdim",
+    init_states: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
-    object, or None for mode "base") on `tasks` of `suite` (None: all), `episodes` per task.
+    object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
+    task, starting from `init_states` only (None: all shipped init states; see `episode_start`).
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,
@@ -193,6 +208,8 @@ def evaluate(
     if critic is not None and obs == "rgb":
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
     specs = [get_task(suite, t) for t in tasks] if tasks is not None else list_tasks(suite)
+    for spec in specs:
+        check_init_states(init_states, spec.n_init_states)
     indices = list(dict.fromkeys(spec.index for spec in specs))
     agent = JITI(open_policy(policy), open_critic(critic), mode=mode, seed=seed, **settings)
     config = {
@@ -207,6 +224,7 @@ def evaluate(
         "perturbation": perturbation,
         "max_steps": max_steps,
         "obs": obs,
+        "init_states": None if init_states is None else sorted({int(i) for i in init_states}),
     }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -234,7 +252,7 @@ def _run_task(suite: str, index: int, episodes: list[int], agent: JITI, monitor_
     try:
         monitor = monitor_cls(env)
         for episode in episodes:
-            init_index, reset_seed = episode_start(config["seed"], suite, index, episode, env.task.n_init_states)
+            init_index, reset_seed = episode_start(config["seed"], suite, index, episode, env.task.n_init_states, config["init_states"])
             numbers, verdict = _run_episode(env, agent, monitor, init_index, reset_seed)
             record = {"task": key, "suite": suite, "task_index": index, "episode": episode, "init_index": init_index,
                       "seed": reset_seed, "mode": config["mode"], **numbers,

@@ -33,6 +33,9 @@ Choices made here, each for a reason:
   re-ranked 50 ms action barely moves the robot (`benchmarks/jiti_headroom.py` measured that one-step
   changes near the base action almost never turn an inelegant episode elegant). The window, the
   threshold and the log count decisions; a per-step policy is the case chunk = 1.
+- Mode "random" intervenes at a random `random_rate` of decisions with a uniformly random eligible
+  candidate, critic or not: the control that tells whether the critic's choice (and its timing) matters,
+  and the exploration that gives recorded rollouts (`elegant rollouts`) alternatives with known outcomes.
 """
 from __future__ import annotations
 
@@ -49,7 +52,7 @@ from base_suites.errors import UserInputError, unknown_choice
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Observation, as_action, chunk_of
 
-MODES = ("jiti", "always", "base")
+MODES = ("jiti", "always", "base", "random")
 THRESHOLD_MODES = ("absolute", "std")
 DEFAULT_THRESHOLD = 1.0
 DEFAULT_NOISE_SCALE = 0.1
@@ -150,7 +153,8 @@ class JITI:
     """A policy (obs -> 7-D action) that wraps a base policy and intervenes at critical moments.
 
     Modes: "jiti" (intervene when dq > tau), "always" (re-select every step: the V-GPS baseline),
-    "base" (never intervene, still log the critic's scores; the critic may then be None).
+    "base" (never intervene, still log the critic's scores; the critic may then be None), "random"
+    (intervene at a random `random_rate` of decisions with a random eligible candidate; critic optional).
     """
 
     def __init__(
@@ -165,6 +169,7 @@ class JITI:
         noise_scale: float = DEFAULT_NOISE_SCALE,
         seed: int = 0,
         trust_radius: float | None = None,
+        random_rate: float = 0.1,
     ) -> None:
         if mode not in MODES:
             raise unknown_choice("JITI mode", mode, MODES)
@@ -178,8 +183,10 @@ class JITI:
             raise UserInputError(f"JITI threshold and noise_scale must be >= 0, got {threshold} and {noise_scale}")
         if trust_radius is not None and float(trust_radius) <= 0:
             raise UserInputError(f"JITI trust_radius must be > 0 (or None for no limit), got {trust_radius}")
-        if critic is None and mode != "base":
-            raise UserInputError(f"JITI mode {mode!r} needs a critic; only mode 'base' runs without one")
+        if critic is None and mode not in ("base", "random"):
+            raise UserInputError(f"JITI mode {mode!r} needs a critic; only modes 'base' and 'random' run without one")
+        if not 0.0 <= float(random_rate) <= 1.0:
+            raise UserInputError(f"JITI random_rate must lie in [0, 1], got {random_rate}")
         self.policy = as_policy(policy, noise_scale=noise_scale, seed=seed)
         self.chunk = chunk_of(self.policy)
         critic_chunk = int(getattr(critic, "chunk", 1)) if critic is not None else self.chunk
@@ -198,6 +205,8 @@ class JITI:
         # Candidates farther than this (L2 over the action) from the base action are not eligible: a
         # critic trained on a few demos ranks far-off samples (another GMM mode, a gripper flip) badly.
         self.trust_radius = None if trust_radius is None else float(trust_radius)
+        self.random_rate = float(random_rate)
+        self._rng = np.random.default_rng(seed)  # mode "random": when and what to choose
         self._scores: deque[float] = deque(maxlen=self.window)
         self._queue: deque[np.ndarray] = deque()
         self._step = 0
@@ -213,6 +222,7 @@ class JITI:
             "n_candidates": self.n_candidates,
             "noise_scale": self.noise_scale,
             "trust_radius": self.trust_radius,
+            "random_rate": self.random_rate,
             "chunk": self.chunk,
             "policy_adapter": type(self.policy).__name__,
         }
@@ -224,6 +234,8 @@ class JITI:
         if self.critic is not None and metadata is None:
             raise UserInputError("JITI.reset needs the env's metadata to bind the critic: call reset(env.metadata)")
         self.policy.reset(metadata, seed=seed)
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
         if self.critic is not None:
             self.critic.bind(metadata)
         self._scores.clear()
@@ -239,42 +251,51 @@ class JITI:
         plan = decide(self.policy, obs, self.chunk)
         start = time.perf_counter()
         step, self._step = self._step, self._step + 1
-        if self.critic is None:
-            self.log.append(Decision(step, None, None, None, None, None, False, 0, None, time.perf_counter() - start))
-            return self._execute(plan)
-        state = _state_of(obs)
-        mean = std = dq = tau = None
-        if len(self._scores) == self.window:  # plain Python: ~10x faster than numpy on 10 floats
-            mean = math.fsum(self._scores) / self.window
-            std = math.sqrt(math.fsum((x - mean) ** 2 for x in self._scores) / self.window)
-            tau = self.threshold if self.threshold_mode == "absolute" else self.threshold * std
-        if self.mode == "always":
+        q = mean = std = dq = tau = None
+        candidates = scores_c = None
+        if self.critic is not None:
+            state = _state_of(obs)
+            if len(self._scores) == self.window:  # plain Python: ~10x faster than numpy on 10 floats
+                mean = math.fsum(self._scores) / self.window
+                std = math.sqrt(math.fsum((x - mean) ** 2 for x in self._scores) / self.window)
+                tau = self.threshold if self.threshold_mode == "absolute" else self.threshold * std
+            if self.mode == "always":
+                candidates = self._candidates(obs, plan)
+                scores_c = self._score(state, candidates)
+                q = float(scores_c[0])
+            else:
+                q = float(self._score(state, plan[None])[0])
+            if mean is not None:
+                dq = abs(q - mean)
+            if self.mode == "jiti" and dq is not None and dq > tau:
+                candidates = self._candidates(obs, plan)
+                scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
+        if self.mode == "random" and self._rng.random() < self.random_rate:
             candidates = self._candidates(obs, plan)
-            scores_c = self._score(state, candidates)
-            q = float(scores_c[0])
-        else:
-            q = float(self._score(state, plan[None])[0])
-            scores_c = None
-        if mean is not None:
-            dq = abs(q - mean)
-        if self.mode == "jiti" and dq is not None and dq > tau:
-            candidates = self._candidates(obs, plan)
-            scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
-        chosen, chosen_q, executed = 0, q, plan
-        if scores_c is not None:
+            if self.critic is not None:
+                scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
+        chosen, chosen_q, executed, distance = 0, q, plan, None
+        if candidates is not None:
             distance = plan_distance(candidates)
-            chosen = choose_candidate(scores_c, distance, self.trust_radius)
-            chosen_q, executed = float(scores_c[chosen]), candidates[chosen]
-        self._scores.append(chosen_q)
+            chosen = self._random_choice(distance) if self.mode == "random" else choose_candidate(scores_c, distance, self.trust_radius)
+            executed = candidates[chosen]
+            chosen_q = None if scores_c is None else float(scores_c[chosen])
+        if chosen_q is not None:
+            self._scores.append(chosen_q)
         elapsed = time.perf_counter() - start
         self.log.append(
             Decision(
-                step, q, mean, std, dq, tau, scores_c is not None, chosen, chosen_q, elapsed,
+                step, q, mean, std, dq, tau, candidates is not None, chosen, chosen_q, elapsed,
                 candidate_q=None if scores_c is None else [round(float(x), 4) for x in scores_c],
-                action_change=None if scores_c is None else float(distance[chosen]),
+                action_change=None if distance is None else float(distance[chosen]),
             )
         )
         return self._execute(executed)
+
+    def _random_choice(self, distance: np.ndarray) -> int:
+        """Mode "random": a uniformly random eligible alternative to the base plan (the base plan if none is)."""
+        eligible = np.flatnonzero(eligible_candidates(distance, self.trust_radius)[1:]) + 1
+        return int(self._rng.choice(eligible)) if len(eligible) else 0
 
     def _execute(self, plan: np.ndarray) -> np.ndarray:
         self._queue.extend(plan[1:])

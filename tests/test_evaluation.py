@@ -110,6 +110,11 @@ def test_episode_start_is_seeded_and_visits_distinct_inits():
     assert starts == [episode_start(3, SUITE, TASK, i, 50) for i in range(50)]
     assert starts != [episode_start(4, SUITE, TASK, i, 50) for i in range(50)]
     assert starts[:5] != [episode_start(3, SUITE, 1, i, 50) for i in range(5)]
+    held_out = [episode_start(3, SUITE, TASK, i, 50, range(25, 50))[0] for i in range(25)]
+    assert sorted(held_out) == list(range(25, 50))  # a subset of init states, each once, seeded
+    assert held_out == [episode_start(3, SUITE, TASK, i, 50, list(range(49, 24, -1)))[0] for i in range(25)]
+    with pytest.raises(UserInputError, match="expected indices in 0..49"):
+        episode_start(3, SUITE, TASK, 0, 50, [10, 50])
 
 
 def test_refuses_existing_run_without_resume_and_a_different_config(runs):
@@ -136,3 +141,5 @@ def test_bad_arguments_are_user_errors(tmp_path):
         evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), "jiti", 0, 0, tmp_path)
     with pytest.raises(UserInputError, match="needs a critic"):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "jiti", 1, 0, tmp_path)
+    with pytest.raises(UserInputError, match="init states"):
+        evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, init_states=[])

@@ -310,3 +310,20 @@ def test_plan_distance_is_the_rms_over_the_chunk_of_the_per_step_distance():
     candidates[2, :, :2] = 0.6  # both steps moved by 0.6 * sqrt(2)
     assert plan_distance(candidates) == pytest.approx([0.0, np.sqrt(0.5), 0.6 * np.sqrt(2)])
     assert plan_distance(candidates[:, :1]) == pytest.approx([0.0, 1.0, 0.6 * np.sqrt(2)])  # chunk 1: plain L2
+
+
+def test_mode_random_intervenes_at_the_requested_rate_with_eligible_candidates_only():
+    policy = SamplingPolicy()  # candidate k has a[0] = k / 100: candidates 1..10 lie within 0.1 of the base
+    jiti = JITI(policy, None, mode="random", random_rate=0.3, trust_radius=0.1, n_candidates=16, seed=5)
+    actions = rollout(jiti, 400)
+    hit = [d for d in jiti.log if d.intervened]
+    assert 0.2 < len(hit) / 400 < 0.4 and all(d.q is None and d.candidate_q is None for d in jiti.log)
+    assert {d.chosen for d in hit} == set(range(1, 11))  # never the base, never beyond the trust radius
+    assert all(actions[d.step][0] == pytest.approx(d.chosen / 100.0) for d in hit)
+    again = JITI(SamplingPolicy(), None, mode="random", random_rate=0.3, trust_radius=0.1, n_candidates=16, seed=5)
+    assert [a.tolist() for a in rollout(again, 400)] == [a.tolist() for a in actions]  # seeded
+    scored = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 400), mode="random", random_rate=0.3, seed=5)
+    rollout(scored, 400)
+    assert all(d.q == 5.0 for d in scored.log) and all(len(d.candidate_q) == 16 for d in scored.log if d.intervened)
+    with pytest.raises(UserInputError, match="random_rate"):
+        JITI(SamplingPolicy(), None, mode="random", random_rate=1.5)

@@ -1,0 +1,90 @@
+"""Policy rollouts recorded as a dataset, so a critic can learn from the base policy's own mistakes.
+
+A critic trained on demonstrations only knows the demonstrator's ways of failing. A BC policy fails in
+its own: on libero_object/0 a policy set the soup can down 3-5 cm off the basket's centre (the limit is
+3 cm), which neither the clean expert (within 1.5 cm) nor its `misplace` knob (beside the basket) ever
+did, so no demo-trained critic could rank the actions that lead there. Here the policy is rolled out in
+the real env, optionally exploring (JITI's mode "random": at a random fraction of its decisions a random
+candidate within the trust radius, i.e. the alternatives JITI can choose among), and every episode is
+written in the demonstrations' HDF5 layout. `elegant annotate` then labels it like any demo file and
+`elegant train-critic` takes demos and rollouts together.
+
+Starts: episode i of a task starts where `elegant eval` episode i would (`episode_start` with the same
+seed and `init_states`). To keep an evaluation honest, collect rollouts on init states the evaluation
+does not use (`--init-states 0-24` here, `elegant eval --init-states 25-49` there): the env and a
+deterministic policy repeat themselves exactly from the same start.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from annotations.collect import collect_episodes
+from annotations.dataset import DemoFile
+from base_suites.env import LiberoEnv
+from elegant.evaluation import check_init_states, episode_start, open_policy
+from elegant.jiti import JITI
+
+
+class _PolicySource:
+    """`collect_episodes`' actor: the policy wrapped in JITI (mode "base", or "random" to explore)."""
+
+    def __init__(self, agent: JITI, suite: str, seed: int, init_states: Sequence[int] | None, policy_name: str) -> None:
+        self.agent, self.suite, self.seed, self.init_states, self.policy_name = agent, suite, seed, init_states, policy_name
+
+    def for_task(self, env: LiberoEnv, spec: Any) -> None:
+        check_init_states(self.init_states, spec.n_init_states)
+
+    def start(self, spec: Any, episode: int) -> tuple[int, int]:
+        return episode_start(self.seed, self.suite, spec.index, episode, spec.n_init_states, self.init_states)
+
+    def begin(self, env: LiberoEnv, episode: int, reset_seed: int) -> None:
+        self.agent.reset(env.metadata, seed=reset_seed)
+
+    def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        return self.agent(obs)
+
+    def episode_attrs(self) -> dict[str, Any]:
+        explored = [d.step for d in self.agent.log if d.intervened]
+        return {"policy": self.policy_name, "rollout": self.agent.config(), "explored_steps": explored}
+
+
+def collect_rollouts(
+    suite: str,
+    tasks: Sequence[int] | None,
+    policy: Any,
+    episodes: int,
+    out: str,
+    *,
+    explore: float = 0.0,
+    trust_radius: float | None = 0.3,
+    n_candidates: int = 16,
+    init_states: Sequence[int] | None = None,
+    seed: int = 0,
+    max_steps: int | None = None,
+    resume: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Roll `policy` (a directory or a callable) out `episodes` times per task of `suite` (None: all ten)
+    and write the episodes to `out` (demo layout, atomic, resumable). `explore`: the fraction of the
+    policy's decisions replaced by a random candidate within `trust_radius` (0: the policy as it is).
+
+    Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
+    """
+    mode = "random" if explore > 0 else "base"
+    agent = JITI(open_policy(policy), None, mode=mode, random_rate=explore, trust_radius=trust_radius,
+                 n_candidates=n_candidates, seed=seed)
+    name = policy if isinstance(policy, str) else type(policy).__name__
+    source = _PolicySource(agent, suite, seed, None if init_states is None else list(init_states), name)
+    path = collect_episodes(suite, tasks, episodes, out, source, seed=seed, resume=resume, progress=progress, desc="rollouts",
+                            horizon=lambda spec: max_steps or spec.default_max_steps)
+    with DemoFile(path) as f:
+        demos = list(f)
+    return {
+        "out": path,
+        "episodes": len(demos),
+        "success_rate": float(np.mean([d.attrs["success"] for d in demos])),
+        "explored_per_episode": float(np.mean([len(d.attrs.get("explored_steps", [])) for d in demos])),
+    }

@@ -1,0 +1,76 @@
+"""Policy rollouts recorded as a dataset (`elegant rollouts`), on the real simulator: the episodes start
+where evaluation episodes would, exploration is recorded and seeded, an interrupted file resumes to the
+same content, and `annotate_file` labels the result like any demo file."""
+import numpy as np
+import pytest
+
+from annotations import CRITERIA, DemoFile, annotate_file
+from annotations import collect
+from base_suites import UserInputError
+from elegant.evaluation import episode_start
+from elegant.rollouts import collect_rollouts
+
+pytestmark = pytest.mark.sim
+SUITE, TASK, STEPS, INITS = "libero_object", 0, 12, [3, 7, 9]
+
+
+class Lower:
+    """Lowers the open hand; `sample` offers candidates drifting in x by k / 20 (k = 0 is the action)."""
+
+    def __call__(self, obs):
+        return np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0, -1.0])
+
+    def sample(self, obs, n):
+        out = np.repeat(self(obs)[None], n, axis=0)
+        out[:, 0] = np.arange(n) / 20.0
+        return out
+
+
+def collect_into(path, episodes=2, **kw):
+    return collect_rollouts(SUITE, [TASK], Lower(), episodes, str(path), explore=0.5, trust_radius=0.3, init_states=INITS,
+                            seed=4, max_steps=STEPS, progress=False, **kw)
+
+
+def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkeypatch):
+    summary = collect_into(tmp_path / "full.hdf5")
+    assert summary["episodes"] == 2 and 0 < summary["explored_per_episode"] < STEPS
+    with DemoFile(summary["out"]) as f:
+        demos = list(f)
+    for i, demo in enumerate(demos):
+        init, reset_seed = episode_start(4, SUITE, TASK, i, 50, INITS)
+        assert (demo.attrs["init_state_index"], demo.attrs["reset_seed"]) == (init, reset_seed) and init in INITS
+        explored = demo.attrs["explored_steps"]
+        assert demo.attrs["rollout"]["mode"] == "random" and demo.attrs["rollout"]["random_rate"] == 0.5
+        moved = [t for t in range(demo.num_samples) if demo.actions[t][0] != 0.0]
+        assert moved == explored  # exactly the explored steps deviate, by an eligible candidate
+        assert all(0.0 < demo.actions[t][0] <= 0.3 for t in explored)
+
+    real_record = collect.record_episode
+    calls = {"n": 0}
+
+    def crash_on_second(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real_record(*args, **kwargs)
+
+    monkeypatch.setattr(collect, "record_episode", crash_on_second)
+    with pytest.raises(KeyboardInterrupt):
+        collect_into(tmp_path / "cut.hdf5")
+    monkeypatch.setattr(collect, "record_episode", real_record)
+    resumed = collect_into(tmp_path / "cut.hdf5", resume=True)
+    with DemoFile(summary["out"]) as a, DemoFile(resumed["out"]) as b:
+        for da, db in zip(a, b, strict=True):
+            assert np.array_equal(da.actions, db.actions) and np.array_equal(da.obs, db.obs)
+
+    annotated = annotate_file(summary["out"], str(tmp_path / "annotated.hdf5"), progress=False)
+    assert annotated["demos"] == 2
+    with DemoFile(str(tmp_path / "annotated.hdf5"), require_labels=True) as f:
+        for demo in f:
+            assert all(demo.itc[c].shape == (demo.num_samples,) for c in CRITERIA)
+            assert demo.mc_return.shape == (demo.num_samples,)
+
+
+def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
+    with pytest.raises(UserInputError, match="expected indices in 0..49"):
+        collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), init_states=[60], progress=False)
