@@ -99,7 +99,7 @@ def collect_episodes(
                 record = record_episode(env, source, obs)
                 demo = Demo(
                     name="", actions=record["actions"], states=record["states"], obs=record["obs"],
-                    next_obs=record["next_obs"], rewards=record["rewards"], dones=record["dones"],
+                    next_obs=record["next_obs"], rewards=record["rewards"], dones=record["dones"], final_state=record["final_state"],
                     attrs={
                         "suite": suite, "task_index": spec.index, "task_name": spec.name,
                         "language_instruction": env.instruction, "init_state_index": init, "seed": seed,
@@ -204,4 +204,5 @@ def record_episode(env: LiberoEnv, policy, obs: Mapping[str, np.ndarray]) -> dic
         "actions": np.array(actions), "states": np.array(states), "obs": np.array(observations),
         "next_obs": np.array(next_observations), "rewards": np.array(rewards, dtype=np.float32),
         "dones": dones, "success": bool(info["success"]), "perturbation": info["perturbation"],
+        "final_state": env.get_sim_state(),
     }

@@ -37,6 +37,7 @@ class Demo:
     itc_segments: dict[str, np.ndarray] | None = None
     elegance_reward: np.ndarray | None = None
     mc_return: np.ndarray | None = None
+    final_state: np.ndarray | None = None  # the MuJoCo state after the last action, where recorded
 
     @property
     def task_key(self) -> str:
@@ -129,6 +130,7 @@ class DemoFile:
             rewards=g["rewards"][()],
             dones=g["dones"][()],
             attrs=read_attrs(g),
+            final_state=g["final_state"][()] if "final_state" in g else None,
         )
         if "itc" in g:
             missing = [c for c in CRITERIA if c not in g["itc"]]
@@ -191,6 +193,8 @@ class DemoWriter:
         g.create_dataset("next_obs/state", data=np.asarray(demo.next_obs, dtype=np.float32))
         g.create_dataset("rewards", data=np.asarray(demo.rewards, dtype=np.float32))
         g.create_dataset("dones", data=np.asarray(demo.dones, dtype=np.uint8))
+        if demo.final_state is not None:
+            g.create_dataset("final_state", data=np.asarray(demo.final_state, dtype=np.float64))
         if demo.itc is not None:
             for c in CRITERIA:
                 g.create_dataset(f"itc/{c}", data=np.asarray(demo.itc[c], dtype=bool))

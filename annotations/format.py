@@ -18,6 +18,8 @@ One file holds demos of one or more tasks::
         next_obs/state (T, D)  float32  the same after each action
         rewards        (T,)    float32  1.0 where the task goal holds after the action
         dones          (T,)    uint8    1 at the last step
+        final_state    (S,)    float64  the MuJoCo state after the last action (recorded episodes; LIBERO's
+                                        own files lack it, and a replay then steps the env once instead)
       annotated files add:
         itc/<criterion>           (T,)          bool  True where the criterion is kept at that step
         itc_segments/<criterion>  (ceil(T/25),) bool  True where the whole window kept it

@@ -2,9 +2,11 @@
 
 For each demo the task's env is reset to the demo's init state, its fixtures are put where the recording
 had them (`fixture_layout`: the stored states do not hold it), then jumped to each stored MuJoCo state
-in turn and the ITC monitor judges every transition (s_t, a_t, s_t+1); the state after the last action,
-which the file does not store, is produced by stepping the env once from the last stored state. No
-policy or expert runs, so the same labelling works for our scripted demos and for imported LIBERO
+in turn and the ITC monitor judges every transition (s_t, a_t, s_t+1). The state after the last action
+is the recorded `final_state`; a file without one (LIBERO's own) gets it by stepping the env once from
+the last stored state, which is only approximate: the controller's internal state (the gripper's
+smoothed command, the OSC target) is not part of a MuJoCo state, and that last transition is where
+LIBERO ends a successful episode, so where placements are judged. No policy or expert runs, so the same labelling works for our scripted demos and for imported LIBERO
 demos. The annotated copy (layout in `annotations.format`) adds per-step and per-window labels, the
 elegance reward and its discounted return-to-go; human labels from a CSV replace automatic windows.
 """
@@ -53,6 +55,9 @@ def replay_verdict(env: LiberoEnv, monitor: ITCMonitor, demo: Demo) -> EpisodeVe
     for t in range(demo.num_samples):
         if t + 1 < demo.num_samples:
             env.set_sim_state(demo.states[t + 1])
+        elif demo.final_state is not None:
+            env.set_sim_state(demo.final_state)
+            success = env.goal_reached()
         else:
             env.set_sim_state(demo.states[-1])
             success = bool(env.step(demo.actions[-1])[4]["success"])
@@ -101,7 +106,7 @@ def _labelled(demo: Demo, verdict: EpisodeVerdict, gamma: float) -> Demo:
     attrs.update(success=verdict.success, elegant=verdict.elegant, violated=verdict.violated)
     return Demo(
         name=demo.name, actions=demo.actions, states=demo.states, obs=demo.obs, next_obs=demo.next_obs,
-        rewards=demo.rewards, dones=demo.dones, attrs=attrs,
+        rewards=demo.rewards, dones=demo.dones, attrs=attrs, final_state=demo.final_state,
         itc={c: verdict.steps[c] for c in CRITERIA}, itc_segments={c: verdict.segments[c] for c in CRITERIA},
         elegance_reward=reward, mc_return=discounted_return_to_go(reward, gamma),
     )

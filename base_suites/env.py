@@ -311,6 +311,10 @@ class LiberoEnv(gym.Env):
         """The flattened MuJoCo state (time, qpos, qvel), as stored in LIBERO's HDF5 `states`."""
         return np.asarray(self._env.get_sim_state()).copy()
 
+    def goal_reached(self) -> bool:
+        """Whether the task's BDDL goal holds in the current simulator state (LIBERO's check_success)."""
+        return bool(self._env.check_success())
+
     def set_sim_state(self, state: np.ndarray) -> dict[str, np.ndarray]:
         """Jump to a stored MuJoCo state (for replaying demonstrations); returns the observation."""
         self._last_raw = self._env.regenerate_obs_from_state(np.asarray(state))

@@ -6,9 +6,10 @@ import pytest
 
 from annotations import CRITERIA, DemoFile, annotate_file
 from annotations import collect
-from base_suites import UserInputError
+from base_suites import UserInputError, make_env
 from elegant.evaluation import episode_start
 from elegant.rollouts import collect_rollouts
+from itc import ITCMonitor
 
 pytestmark = pytest.mark.sim
 SUITE, TASK, STEPS, INITS = "libero_object", 0, 12, [3, 7, 9]
@@ -66,9 +67,24 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
     annotated = annotate_file(summary["out"], str(tmp_path / "annotated.hdf5"), progress=False)
     assert annotated["demos"] == 2
     with DemoFile(str(tmp_path / "annotated.hdf5"), require_labels=True) as f:
-        for demo in f:
-            assert all(demo.itc[c].shape == (demo.num_samples,) for c in CRITERIA)
-            assert demo.mc_return.shape == (demo.num_samples,)
+        labelled = list(f)
+    env = make_env(SUITE, TASK, seed=4, max_steps=STEPS)
+    monitor = ITCMonitor(env)
+    for demo in labelled:
+        # replay gate: the recorded actions, run live under the monitor, give the labels the annotation
+        # computed from the stored states, at every step (the last transition included: it is replayed
+        # from the recorded final state, not re-simulated without the controller's internal state)
+        env.reset(seed=int(demo.attrs["reset_seed"]), options={"init_state": int(demo.attrs["init_state_index"])})
+        monitor.reset()
+        for action in demo.actions:
+            _, _, _, _, info = env.step(action)
+            monitor.step(action)
+        np.testing.assert_array_equal(env.get_sim_state(), demo.final_state)
+        live = monitor.verdict(bool(info["success"]))
+        for c in CRITERIA:
+            np.testing.assert_array_equal(demo.itc[c], live.steps[c], err_msg=c)
+        assert demo.attrs["success"] == live.success and demo.mc_return.shape == (demo.num_samples,)
+    env.close()
 
 
 def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
