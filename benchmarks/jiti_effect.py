@@ -60,7 +60,7 @@ def main() -> None:
     parser.add_argument("--max-steps", type=int)
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy and the critic")
     parser.add_argument("--window", type=int, help="JITI's window in decisions (default: JITI's)")
-    parser.add_argument("--policy-modes", type=int, default=5, help="components of the BC policy's GMM head")
+    parser.add_argument("--policy-modes", type=int, help="components of the BC policy's GMM head (default: train-policy's)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     config = ChainConfig(

@@ -181,7 +181,7 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--history", type=int, default=10, help="states stacked as input")
     p.add_argument("--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)")
-    p.add_argument("--modes", type=int, default=5, help="components of the GMM action head")
+    p.add_argument("--modes", type=int, help="components of the GMM action head (default 16)")
     p.add_argument("--resume", action="store_true")
 
 
@@ -190,7 +190,8 @@ def _train_policy(args: argparse.Namespace) -> dict:
     from elegant.policies import train_policy
 
     summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
-                           batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk, modes=args.modes)
+                           batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk,
+                           **({} if args.modes is None else {"modes": args.modes}))
     summary.pop("loss_history", None)
     return summary
 

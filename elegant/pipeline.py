@@ -35,7 +35,7 @@ class ChainConfig:
     on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
     suites' horizons. `chunk`: actions per decision of the BC policy (executed open-loop) and of the
     critic that judges them; JITI then chooses among whole chunks (see `elegant.jiti`). `window`: JITI's
-    window in decisions (None: JITI's default). `policy_modes`: components of the BC policy's GMM head.
+    window in decisions (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -56,15 +56,17 @@ class ChainConfig:
     max_steps: int | None = None
     chunk: int = 1
     window: int | None = None
-    policy_modes: int = 5
+    policy_modes: int | None = None
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
         if unknown or not self.modes:
             raise UserInputError(f"chain modes {list(self.modes)}: expected some of {', '.join(MODES)}")
-        for name in ("demos", "critic_steps", "policy_epochs", "episodes", "chunk", "policy_modes"):
+        for name in ("demos", "critic_steps", "policy_epochs", "episodes", "chunk"):
             if getattr(self, name) < 1:
                 raise UserInputError(f"chain {name} must be >= 1, got {getattr(self, name)}")
+        if self.policy_modes is not None and self.policy_modes < 1:
+            raise UserInputError(f"chain policy_modes must be >= 1, got {self.policy_modes}")
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
         from critics.data import REWARDS  # torch loads only when a chain runs
@@ -139,7 +141,8 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
                      cql_weight=cfg.critic_cql_weight, reward=cfg.critic_reward, chunk=cfg.chunk, resume=True, progress=progress)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
-        train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk, modes=cfg.policy_modes, resume=True, progress=progress)
+        train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk,
+                     resume=True, progress=progress, **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:

@@ -32,7 +32,7 @@ from base_suites.errors import UserInputError
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
-from elegant.policies.bc_model import BCNet
+from elegant.policies.bc_model import DEFAULT_MODES, BCNet
 from elegant.policies.protocol import ACTION_DIM
 
 CHECKPOINT_FILE = "checkpoint.pt"
@@ -50,7 +50,7 @@ class BCConfig:
     lr: float = 1e-3
     weight_decay: float = 0.0
     hidden: tuple[int, ...] = (256, 256)
-    modes: int = 5
+    modes: int = DEFAULT_MODES
     min_std: float = 1e-4
     obs_min_std: float = 1e-2
     grad_clip: float = 100.0
@@ -180,7 +180,7 @@ def train_policy(
     lr: float = 1e-3,
     weight_decay: float = 0.0,
     hidden: Sequence[int] = (256, 256),
-    modes: int = 5,
+    modes: int = DEFAULT_MODES,
     min_std: float = 1e-4,
     obs_min_std: float = 1e-2,
     grad_clip: float = 100.0,
