@@ -11,6 +11,10 @@ share one region (two items in a basket, two pots on a stove) they cannot all si
 tolerance there grows per axis to the region's half size minus `region_edge_margin` (an ellipse test).
 A placement judged good that later leaves the tolerance while nobody holds it (slid or bounced out, or
 knocked away) is a violation at that step.
+An object pushed or dragged into its goal without ever being carried (a plate slid over the table) turns
+its sub-goal true as it crosses into the region, so at that instant it always sits at the region's edge,
+and LIBERO ends the episode right there: it is never judged at rest. Its placement is then the goal
+predicate itself (LIBERO's region test).
 """
 from __future__ import annotations
 
@@ -25,6 +29,7 @@ from itc.spec import Placement
 
 @dataclass
 class _Attempt:
+    carried: bool = False  # the robot grasped the object in this attempt (else it is pushed, if at all)
     released: bool = False
     release_xy: np.ndarray | None = None
     rest_steps: int = 0
@@ -55,12 +60,15 @@ class PoseAccuracy(Constraint):
         obj, p = placement.obj, self.params
         held = ctx.held == obj
         if held and self._prev_held != obj:
-            self._attempts[k] = _Attempt()
+            self._attempts[k] = _Attempt(carried=True)
         attempt = self._attempts[k]
         if not held and self._prev_held == obj:
             attempt.released, attempt.rest_steps = True, 0
             attempt.release_xy = ctx.position(obj)[:2].copy()
         if goal_now and not self._goal_held[k] and not attempt.judged:
+            if not attempt.carried and not held:  # pushed in (see module doc)
+                attempt.judged = True  # not `placed`: it lies beyond the centre tolerance by construction
+                return []
             return self._judge(ctx, placement, attempt)
         if attempt.released and not held:
             attempt.rest_steps = attempt.rest_steps + 1 if ctx.speed(obj) < p.rest_speed else 0

@@ -277,3 +277,32 @@ def test_wrapper_reports_flags_reward_and_final_verdict(env):
 def test_monitor_refuses_steps_before_reset(env):
     with pytest.raises(RuntimeError, match="reset"):
         ITCMonitor(env).step()
+
+
+def test_a_plate_pushed_into_its_region_past_an_object_in_the_way_is_elegant():
+    """libero_goal/5 ("push the plate to the front of the stove"), the label benchmark's demo 58: the cream
+    cheese stands where the plate must go, and LIBERO ends the episode as the plate's centre crosses into
+    the region, at its edge. Neither is a violation: the cheese is in the way (it may move, not tip), and
+    a pushed object is placed by the goal predicate itself. Both used to be false alarms of the clean expert."""
+    from base_suites.experts import ScriptedExpert
+    from base_suites.seeds import derive_seed
+
+    env = ITCWrapper(make_env(SCENE, 5, seed=0, max_steps=600))  # the demos' horizon: it took 320 steps
+    obs, _ = env.reset(seed=61105001, options={"init_state": 8})
+    sim = env.unwrapped.sim
+    cheese = sim.position("cream_cheese_1").copy()
+    region = sim.region("main_table_stove_front_region")
+    expert = ScriptedExpert(env.unwrapped, quality="mixed", seed=derive_seed(0, 5))  # as `elegant demos --seed 0` made it
+    expert.reset(env.unwrapped.metadata, episode=8)
+    assert not any(expert.knobs.values())  # that episode drew no knob: a clean execution
+    info = {}
+    for _ in range(env.unwrapped.max_steps):
+        obs, _, terminated, truncated, info = env.step(expert(obs))
+        if terminated or truncated:
+            break
+    offset = np.linalg.norm((sim.position("plate_1") - region.position)[:2])
+    moved = np.linalg.norm(sim.position("cream_cheese_1") - cheese)
+    env.close()
+    params = ITCParams()
+    assert info["success"] and offset > params.place_xy_tolerance and moved > params.distractor_move, (offset, moved)
+    assert info["itc_verdict"]["violated"] == [], info["itc_verdict"]["events"]
