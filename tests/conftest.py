@@ -12,3 +12,25 @@ try:
     torch.set_num_threads(1)
 except ImportError:  # torch-free test runs still work
     pass
+
+
+def interrupted_at_second_episode(monkeypatch, collect_call) -> None:
+    """Run `collect_call()` with the collector's episode recorder raising KeyboardInterrupt on the second
+    episode (a Ctrl-C mid-collection), check it propagates, then restore the recorder."""
+    import pytest
+
+    from annotations import collect
+
+    real_record = collect.record_episode
+    calls = {"n": 0}
+
+    def crash_on_second(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real_record(*args, **kwargs)
+
+    monkeypatch.setattr(collect, "record_episode", crash_on_second)
+    with pytest.raises(KeyboardInterrupt):
+        collect_call()
+    monkeypatch.setattr(collect, "record_episode", real_record)

@@ -7,6 +7,7 @@ import annotations.collect as collect
 from annotations import DemoFile
 from base_suites import make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
+from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
 
 pytestmark = pytest.mark.sim
@@ -116,20 +117,8 @@ def test_demos_file_layout_and_interrupted_resume_matches_uninterrupted(tmp_path
         assert demo["states"].shape[0] == t and demo["obs/state"].shape[0] == t and demo["next_obs/state"].shape[0] == t
         assert demo["rewards"][-1] == 1.0 and demo["dones"][-1] == 1
         assert {"knobs", "expert_version", "init_state_index"} <= set(demo.attrs)
-    real_record = collect.record_episode
-    calls = {"n": 0}
-
-    def crash_on_second(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return real_record(*args, **kwargs)
-
-    monkeypatch.setattr(collect, "record_episode", crash_on_second)
-    with pytest.raises(KeyboardInterrupt):
-        _collect(tmp_path, "resumed.hdf5")
+    interrupted_at_second_episode(monkeypatch, lambda: _collect(tmp_path, "resumed.hdf5"))
     assert (tmp_path / "resumed.hdf5.partial").exists() and not (tmp_path / "resumed.hdf5").exists()
-    monkeypatch.setattr(collect, "record_episode", real_record)
     resumed, _ = _collect(tmp_path, "resumed.hdf5", resume=True)
     with DemoFile(full) as a, DemoFile(resumed) as b:
         assert len(a) == len(b) == 2

@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 
 from annotations import CRITERIA, DemoFile, annotate_file
-from annotations import collect
 from base_suites import UserInputError, make_env
 from elegant.evaluation import episode_start
 from elegant.rollouts import collect_rollouts
+from conftest import interrupted_at_second_episode
 from itc import ITCMonitor
 
 pytestmark = pytest.mark.sim
@@ -46,19 +46,7 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
         assert moved == explored  # exactly the explored steps deviate, by an eligible candidate
         assert all(0.0 < demo.actions[t][0] <= 0.3 for t in explored)
 
-    real_record = collect.record_episode
-    calls = {"n": 0}
-
-    def crash_on_second(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return real_record(*args, **kwargs)
-
-    monkeypatch.setattr(collect, "record_episode", crash_on_second)
-    with pytest.raises(KeyboardInterrupt):
-        collect_into(tmp_path / "cut.hdf5")
-    monkeypatch.setattr(collect, "record_episode", real_record)
+    interrupted_at_second_episode(monkeypatch, lambda: collect_into(tmp_path / "cut.hdf5"))
     resumed = collect_into(tmp_path / "cut.hdf5", resume=True)
     with DemoFile(summary["out"]) as a, DemoFile(resumed["out"]) as b:
         for da, db in zip(a, b, strict=True):
