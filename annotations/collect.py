@@ -1,21 +1,22 @@
 """Episode collection in the real env, written as LIBERO-layout HDF5: scripted-expert demonstrations here,
 policy rollouts (`elegant.rollouts`) through the same `collect_episodes`.
 
-Episode i of a task starts from shipped init state i (mod 50), and its quality knobs come from
-(seed, task, i), so a collection interrupted and resumed produces exactly the file an uninterrupted
-run would have.
+A demo collection's episode i of a task starts from shipped init state i (mod 50), and its quality
+knobs come from (seed, task, i), so a collection interrupted and resumed produces exactly the file an
+uninterrupted run would have.
 """
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
 from annotations.dataset import Demo, DemoWriter
-from annotations.format import task_key
 from base_suites import get_task, make_env
 from base_suites.env import LiberoEnv
+from base_suites.atomic import changed_fields
 from base_suites.errors import UserInputError
 from base_suites.seeds import derive_seed
 
@@ -67,25 +68,32 @@ def collect_episodes(
     *,
     seed: int,
     horizon: Callable[[Any], int],
+    settings: Mapping[str, Any],
     resume: bool = False,
     progress: bool = True,
     desc: str = "episodes",
 ) -> str:
     """Roll `source` out `episodes` times per task (None: all ten) and write them to `out` in the demo
     layout: appended to `out.partial` as each finishes, renamed to `out` when all are there; `resume`
-    continues an interrupted file. `horizon(spec)` is each task's episode limit. Returns the path."""
+    continues an interrupted file, only with the same `settings` (what determines the episodes: stored
+    in the file's `collection` attribute). `horizon(spec)` is each task's episode limit. Returns the path."""
     from tqdm import tqdm
 
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
     specs = [get_task(suite, t) for t in (tasks if tasks is not None else range(10))]
+    collection = json.loads(json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings}))
     writer: DemoWriter | None = None
     bar = tqdm(total=len(specs) * episodes, desc=f"{desc} {suite}", disable=not progress, unit="ep")
     try:
         for task_pos, spec in enumerate(specs):
             env = make_env(suite, spec.index, seed=seed, max_steps=horizon(spec))
             if writer is None:
-                writer = DemoWriter(out, dataset_attrs(env, suite, [s.index for s in specs]), resume=resume)
+                writer = DemoWriter(out, {**dataset_attrs(env, suite, [s.index for s in specs]), "collection": collection}, resume=resume)
+                changed = changed_fields(writer.attrs.get("collection"), collection, ignore=("episodes",))
+                if changed:
+                    raise UserInputError(f"{out}.partial: cannot resume with different {', '.join(k for k, _, _ in changed)}; "
+                                         "delete it or collect with its settings")
             done_before = writer.count
             source.for_task(env, spec)
             for i in range(episodes):
@@ -166,7 +174,8 @@ def collect_demos(
     knob_rates(quality)  # validate before any work
     # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
     path = collect_episodes(suite, tasks, episodes, out, _ExpertSource(quality, seed), seed=seed, resume=resume, progress=progress,
-                            horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps, desc="demos")
+                            horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps, desc="demos",
+                            settings={"quality": quality})
     from annotations.dataset import DemoFile
 
     with DemoFile(path) as f:

@@ -64,7 +64,7 @@ def read_attrs(node: h5py.HDFObject) -> dict[str, Any]:
     out = {}
     for key, value in node.attrs.items():
         value = _decode(value)
-        if key in _JSON_ATTRS or key in ("env_args", "problem_info", "state_layouts", "annotation"):
+        if key in _JSON_ATTRS or key in ("env_args", "problem_info", "state_layouts", "annotation", "collection"):
             try:
                 value = json.loads(value) if isinstance(value, str) else value
             except json.JSONDecodeError:
@@ -171,6 +171,11 @@ class DemoWriter:
             _write_attrs(data, {"format_version": FORMAT_VERSION, "total": 0, "state_layouts": {}, **file_attrs})
         self._data = self._h5["data"]
         self._layouts = read_attrs(self._data).get("state_layouts", {})
+
+    @property
+    def attrs(self) -> dict[str, Any]:
+        """The file's `data` attributes as written so far (a resumed file's are the first run's)."""
+        return read_attrs(self._data)
 
     @property
     def count(self) -> int:

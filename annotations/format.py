@@ -5,7 +5,9 @@ One file holds demos of one or more tasks::
     data/                          attrs: format_version, env_args (JSON), problem_info (JSON),
                                           language_instruction, total, state_layouts (JSON {task_key: layout}),
                                           annotation (JSON, annotated files only: schema_version, gamma,
-                                          segment_length, itc_params)
+                                          segment_length, itc_params), collection (JSON: the settings that
+                                          made the episodes, e.g. quality and seed, or policy and rollout
+                                          settings; a resumed collection must match them)
     data/demo_<i>/                 attrs: num_samples, suite, task_index, task_name, language_instruction,
                                           init_state_index, seed, knobs (JSON), expert_version, success,
                                           perturbation (JSON list), reset_seed, fixture_layout (JSON

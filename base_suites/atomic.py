@@ -43,11 +43,13 @@ def read_json_file(path: str | os.PathLike, what: str) -> Any:
         raise UserInputError(f"{os.fspath(path)}: corrupt {what} ({exc.__class__.__name__})") from None
 
 
-def changed_fields(old: Any, new: dict, ignore: tuple[str, ...] = ()) -> list[tuple[str, Any, Any]]:
+def changed_fields(old: Any, new: dict, ignore: tuple[str, ...] = (), added: dict | None = None) -> list[tuple[str, Any, Any]]:
     """(key, stored value, this run's value) for each setting in which a run directory's stored record
     `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
-    by key; a resume refuses any of them (every resumable command compares settings this one way)."""
-    old = old if isinstance(old, dict) else {}
+    by key; a resume refuses any of them (every resumable command compares settings this one way).
+    `added`: settings introduced after some records were written, with the value that reproduces what
+    those records' runs did; a record without the key counts as having that value."""
+    old = {**(added or {}), **(old if isinstance(old, dict) else {})}
     return [(k, old.get(k), new.get(k)) for k in sorted(set(old) | set(new)) if k not in ignore and old.get(k) != new.get(k)]
 
 

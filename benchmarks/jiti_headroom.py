@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from base_suites.atomic import atomic_write_json
+from elegant.cli import parse_indices
 from elegant.headroom import intervention_headroom
 from elegant.jiti import choose_candidate
 from elegant.report import plot_headroom
@@ -44,13 +45,14 @@ def main() -> None:
     parser.add_argument("--candidates", type=int, default=16)
     parser.add_argument("--trust-radius", type=float, default=0.3, help="<= 0 for none")
     parser.add_argument("--max-steps", type=int)
+    parser.add_argument("--init-states", help="as elegant eval --init-states: the subset the starts are drawn from, e.g. 25-49")
     parser.add_argument("--out", help="write every branch outcome here (JSON)")
     args = parser.parse_args()
     radius = args.trust_radius if args.trust_radius > 0 else None
     episodes = [int(e) for e in args.episodes.split(",")] if "," in args.episodes else list(range(int(args.episodes)))
     result = intervention_headroom(args.suite, args.task, args.policy, args.critic, episodes=episodes, seed=args.seed,
                                    every=args.every, first=args.first, n_candidates=args.candidates, trust_radius=radius,
-                                   max_steps=args.max_steps)
+                                   max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"))
     for episode in result["episodes"]:
         print(f"init {episode['init_index']}: base {'elegant success' if episode['base_elegant'] else 'not elegant'}, {episode['steps']} steps")
         for point in episode["points"]:

@@ -200,10 +200,12 @@ class Critic:
         single = state.ndim == 1
         if single:
             state, actions = state[None], actions[None]
-        if state.ndim != 2 or state.shape[1] != b.state_size or actions.ndim != 3 or actions.shape[0] != state.shape[0]:
+        width = len(self._center)
+        if state.ndim != 2 or state.shape[1] != b.state_size or actions.ndim != 3 or actions.shape[0] != state.shape[0] \
+                or actions.shape[2] != width:
             raise UserInputError(
-                f"{self.path}: Critic.q expects state ({b.state_size},) with actions (N, A) or states (B, {b.state_size}) "
-                f"with actions (B, N, A) for task {b.task}; got {state.shape} and {actions.shape}"
+                f"{self.path}: Critic.q expects state ({b.state_size},) with actions (N, {width}) or states (B, {b.state_size}) "
+                f"with actions (B, N, {width}) for task {b.task} (chunks of {self.chunk} actions); got {state.shape} and {actions.shape}"
             )
         scaled = (actions - self._center) * self._inv_half
         np.minimum(np.maximum(scaled, -1.0, out=scaled), 1.0, out=scaled)  # np.clip costs 3x as much here
@@ -252,6 +254,10 @@ def load(path: str | os.PathLike) -> Critic:
         normalization = Normalization.from_dict(config["normalization"])
     except (KeyError, TypeError, ValueError) as exc:
         raise UserInputError(f"{config_path}: missing or malformed field ({exc.__class__.__name__}: {exc})") from None
+    chunk = config.get("chunk", 1)
+    if network.action_dim != len(normalization.action_center) * chunk:
+        raise UserInputError(f"{config_path}: network.action_dim {network.action_dim} is not the action size "
+                             f"{len(normalization.action_center)} x chunk {chunk}")
     try:
         state = torch.load(weights_path, map_location="cpu", weights_only=True)
         network.load_state_dict(state)

@@ -144,7 +144,7 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
-    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES)
+    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1})
     if changed:
         raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
                              + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed) + ")")

@@ -66,20 +66,23 @@ def _task_list(text: str | None) -> list[int] | None:
         raise UserInputError(f"--tasks {text!r}: expected comma-separated task indices, e.g. 0,3") from None
 
 
-def _index_list(text: str | None, flag: str) -> list[int] | None:
+def parse_indices(text: str | None, flag: str) -> list[int] | None:
     """'0-24' or '0,3,5-9' -> the listed indices (None stays None)."""
     from base_suites.errors import UserInputError
 
     if text is None:
         return None
-    try:
-        out = []
-        for part in (p.strip() for p in text.split(",") if p.strip()):
-            low, _, high = part.partition("-")
-            out += list(range(int(low), int(high) + 1)) if high else [int(low)]
-        return out
-    except ValueError:
-        raise UserInputError(f"{flag} {text!r}: expected indices and ranges, e.g. 0-24 or 0,3,5-9") from None
+    out = []
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        low, dash, high = part.partition("-")
+        try:
+            first, last = int(low), int(high) if dash else int(low)
+        except ValueError:
+            raise UserInputError(f"{flag} {text!r}: expected indices and ranges, e.g. 0-24 or 0,3,5-9") from None
+        if last < first:
+            raise UserInputError(f"{flag} {text!r}: range {part!r} runs backwards")
+        out += range(first, last + 1)
+    return out
 
 
 def _demos_args(p: argparse.ArgumentParser) -> None:
@@ -120,7 +123,7 @@ def _rollouts(args: argparse.Namespace) -> dict:
     from elegant.rollouts import collect_rollouts
 
     return collect_rollouts(args.suite, _task_list(args.tasks), args.policy, args.episodes, args.out, explore=args.explore,
-                            trust_radius=args.trust_radius, init_states=_index_list(args.init_states, "--init-states"),
+                            trust_radius=args.trust_radius, init_states=parse_indices(args.init_states, "--init-states"),
                             seed=args.seed, max_steps=args.max_steps, resume=args.resume)
 
 
@@ -251,7 +254,7 @@ def _eval(args: argparse.Namespace) -> dict:
     jiti_kwargs = {k: getattr(args, k) for k in JITI_SETTINGS if getattr(args, k, None) is not None}
     summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
                        seed=args.seed, out=args.out, resume=args.resume, perturbation=args.perturbation,
-                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=_index_list(args.init_states, "--init-states"))
+                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"))
     return {k: v for k, v in summary.items() if k != "per_task"}
 
 
@@ -265,6 +268,7 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--episodes", type=int, default=20, help="episodes per evaluation")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-steps", type=int, help="episode horizon (default: the suite's)")
+    p.add_argument("--modes", type=int, help="components of the policy's GMM head (default 16; runs from before this option used 5)")
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
 
 
@@ -273,7 +277,8 @@ def _lifelong(args: argparse.Namespace) -> dict:
     from elegant.lifelong import run_lifelong
 
     result = run_lifelong(args.suite, _task_list(args.tasks), args.data, args.out, epochs=args.epochs, eval_every=args.eval_every,
-                          episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, resume=args.resume)
+                          episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, resume=args.resume,
+                          **({} if args.modes is None else {"modes": args.modes}))
     return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
 
 

@@ -31,7 +31,7 @@ import numpy as np
 from base_suites import get_task, make_env
 from base_suites.errors import UserInputError
 from elegant.evaluation import open_critic, open_policy, episode_start
-from elegant.jiti import choose_candidate, decide, draw_candidates, eligible_candidates, plan_distance
+from elegant.jiti import check_critic_chunk, choose_candidate, decide, draw_candidates, eligible_candidates, plan_distance
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import chunk_of
 
@@ -149,11 +149,12 @@ def intervention_headroom(
     n_candidates: int = 16,
     trust_radius: float | None = None,
     max_steps: int | None = None,
+    init_states: Sequence[int] | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Branch the starts of evaluation episodes `episodes` (indices, as `elegant eval --seed seed` numbers
-    them) of one task; return {"summary": ..., "episodes": [...]}. `policy` and `critic` are directories
-    or objects."""
+    """Branch the starts of evaluation episodes `episodes` (indices, as `elegant eval --seed seed
+    --init-states ...` numbers them) of one task; return {"summary": ..., "episodes": [...]}. `policy`
+    and `critic` are directories or objects."""
     from tqdm import tqdm
 
     from itc import ITCMonitor
@@ -164,14 +165,16 @@ def intervention_headroom(
     chunk = chunk_of(base)
     if every % chunk or first % chunk:
         raise UserInputError(f"headroom: the policy decides every {chunk} steps, so every ({every}) and first ({first}) must be multiples of {chunk}")
+    scorer = open_critic(critic)
+    check_critic_chunk(scorer, chunk)
     spec = get_task(suite, task)
     env = make_env(suite, spec.index, seed=seed, max_steps=max_steps)
     try:
         monitor = ITCMonitor(env)
-        scorer = open_critic(critic).bind(env.metadata)
+        scorer.bind(env.metadata)
         results = []
         for episode in tqdm(list(episodes), desc=f"headroom {suite}/{spec.index}", unit="ep", disable=not progress):
-            init_index, reset_seed = episode_start(seed, suite, spec.index, episode, spec.n_init_states)
+            init_index, reset_seed = episode_start(seed, suite, spec.index, episode, spec.n_init_states, init_states)
             results.append(branch_episode(env, monitor, base, scorer, init_index, reset_seed, every=every, first=first, n_candidates=n_candidates))
     finally:
         env.close()

@@ -9,7 +9,7 @@ critic scores highest.
 
 Choices made here, each for a reason:
 - Warm-up: m_t needs `window` past scores, so no intervention happens until the window is full (the
-  first `window` steps of an episode execute the base action in mode "jiti"). A mean of two or three
+  first `window` decisions of an episode execute the base plan in mode "jiti"). A mean of two or three
   scores would make the very first steps look critical.
 - The window receives the score of the action actually executed (q_t, or the chosen candidate's score
   after an intervention): the window tracks the value of the trajectory being followed, so after a
@@ -72,7 +72,7 @@ class Decision:
     one): the base plan's score, the window statistics and what was executed. `step` is the env step.
 
     `mean`, `std`, `dq` and `tau` are None while the window warms up (or without a critic);
-    `q` and `chosen_q` are None only when JITI runs without a critic (mode "base").
+    `q` and `chosen_q` are None only when JITI runs without a critic (modes "base" and "random").
     """
 
     step: int
@@ -97,6 +97,16 @@ def as_plan(value: Any, chunk: int, source: str) -> np.ndarray:
     if plan.shape != (chunk, ACTION_DIM):
         raise UserInputError(f"{source} returned a plan of shape {plan.shape}; expected ({chunk}, {ACTION_DIM})")
     return np.clip(plan, ACTION_LOW, ACTION_HIGH)
+
+
+def check_critic_chunk(critic: Any, chunk: int) -> None:
+    """Refuse a critic that scores chunks of another length than the policy decides."""
+    critic_chunk = int(getattr(critic, "chunk", 1))
+    if critic_chunk != chunk:
+        raise UserInputError(
+            f"the critic scores chunks of {critic_chunk} actions but the policy decides {chunk} at a time: "
+            f"train the critic with --chunk {chunk}"
+        )
 
 
 def decide(policy: Any, obs: Observation, chunk: int) -> np.ndarray:
@@ -143,6 +153,11 @@ def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: flo
     return int(np.argmax(np.where(eligible_candidates(distance, trust_radius), scores, -np.inf)))
 
 
+def _choice_rng(seed: int) -> np.random.Generator:
+    """Mode "random"'s generator: a stream of its own, apart from the candidate noise the same seed drives."""
+    return np.random.default_rng([int(seed), 0x6A697469])
+
+
 def _state_of(obs: Observation) -> np.ndarray:
     if "state" not in obs:
         raise UserInputError("JITI's critic needs the low-dimensional 'state' observation: make the env with obs='lowdim' or 'both'")
@@ -152,7 +167,7 @@ def _state_of(obs: Observation) -> np.ndarray:
 class JITI:
     """A policy (obs -> 7-D action) that wraps a base policy and intervenes at critical moments.
 
-    Modes: "jiti" (intervene when dq > tau), "always" (re-select every step: the V-GPS baseline),
+    Modes: "jiti" (intervene when dq > tau), "always" (re-select at every decision: the V-GPS baseline),
     "base" (never intervene, still log the critic's scores; the critic may then be None), "random"
     (intervene at a random `random_rate` of decisions with a random eligible candidate; critic optional).
     """
@@ -189,12 +204,8 @@ class JITI:
             raise UserInputError(f"JITI random_rate must lie in [0, 1], got {random_rate}")
         self.policy = as_policy(policy, noise_scale=noise_scale, seed=seed)
         self.chunk = chunk_of(self.policy)
-        critic_chunk = int(getattr(critic, "chunk", 1)) if critic is not None else self.chunk
-        if critic_chunk != self.chunk:
-            raise UserInputError(
-                f"the critic scores chunks of {critic_chunk} actions but the policy decides {self.chunk} at a time: "
-                f"train the critic with --chunk {self.chunk}"
-            )
+        if critic is not None:
+            check_critic_chunk(critic, self.chunk)
         self.critic = critic
         self.window = int(window)
         self.threshold = float(threshold)
@@ -206,7 +217,7 @@ class JITI:
         # critic trained on a few demos ranks far-off samples (another GMM mode, a gripper flip) badly.
         self.trust_radius = None if trust_radius is None else float(trust_radius)
         self.random_rate = float(random_rate)
-        self._rng = np.random.default_rng(seed)  # mode "random": when and what to choose
+        self._rng = _choice_rng(seed)  # mode "random": when and what to choose
         self._scores: deque[float] = deque(maxlen=self.window)
         self._queue: deque[np.ndarray] = deque()
         self._step = 0
@@ -235,7 +246,7 @@ class JITI:
             raise UserInputError("JITI.reset needs the env's metadata to bind the critic: call reset(env.metadata)")
         self.policy.reset(metadata, seed=seed)
         if seed is not None:
-            self._rng = np.random.default_rng(seed)
+            self._rng = _choice_rng(seed)
         if self.critic is not None:
             self.critic.bind(metadata)
         self._scores.clear()

@@ -51,6 +51,7 @@ from elegant.evaluation import evaluate
 from elegant.metrics import lifelong_metrics
 from elegant.policies.bc_data import load_demos
 from elegant.policies.bc_features import BCFeatures
+from elegant.policies.bc_model import DEFAULT_MODES
 from elegant.policies.bc_train import BCConfig, select_tasks, snapshot_dir, train_policy
 from elegant.report import _pct, _save, _table
 
@@ -75,7 +76,7 @@ def train_stage_sequential(run: _Run, k: int) -> None:
     network over the features of all K tasks); snapshots at the evaluation epochs."""
     cfg = run.config
     start: dict[str, Any] = {"features": run.features} if k == 0 else {"init_from": run.kept[k - 1]}
-    train_policy(run.paths, run.stage_dir(k), epochs=cfg["epochs"], seed=cfg["seed"], resume=True, progress=False,
+    train_policy(run.paths, run.stage_dir(k), epochs=cfg["epochs"], seed=cfg["seed"], modes=cfg["modes"], resume=True, progress=False,
                  tasks=[cfg["task_keys"][k]], snapshot_epochs=cfg["eval_epochs"],
                  on_epoch_end=lambda info: run.status(f"{cfg['task_keys'][k]}: epoch {info['epoch']}/{cfg['epochs']}, nll {info['nll']:.3f}"),
                  **start)
@@ -109,7 +110,7 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
     if out.exists() and not out.is_dir():
         raise UserInputError(f"{out}: exists and is not a directory")
     if resume and path.exists():
-        changed = changed_fields(read_json_file(path, "lifelong config"), config)
+        changed = changed_fields(read_json_file(path, "lifelong config"), config, added={"modes": 5})
         if changed:
             key, before, now = changed[0]
             raise UserInputError(f"{path}: field {key!r} is {before!r} but this run has {now!r}; "
@@ -172,6 +173,7 @@ def run_lifelong(
     episodes: int,
     seed: int,
     max_steps: int | None = None,
+    modes: int = DEFAULT_MODES,
     progress: bool = True,
     resume: bool = False,
 ) -> dict[str, Any]:
@@ -180,10 +182,11 @@ def run_lifelong(
     `demo_paths`: demo HDF5 files (from `elegant demos`) holding the demos of every task; task k learns
     from the demos with its task key. `epochs` per task, evaluating the current task every `eval_every`
     epochs (`epochs` must be a multiple) and before training on it; `episodes` per evaluation, episode
-    starts from `seed`; `max_steps` caps each episode (default: the suite's horizon). Writes OUT as the
+    starts from `seed`; `max_steps` caps each episode (default: the suite's horizon); `modes`: the policy's
+    mixture components (runs from before it was a setting used 5). Writes OUT as the
     module docstring describes and returns the content of OUT/lifelong.json.
     """
-    _positive(epochs=epochs, eval_every=eval_every, episodes=episodes, **({} if max_steps is None else {"max_steps": max_steps}))
+    _positive(epochs=epochs, eval_every=eval_every, episodes=episodes, modes=modes, **({} if max_steps is None else {"max_steps": max_steps}))
     if epochs % eval_every:
         raise UserInputError(f"lifelong: epochs ({epochs}) must be a multiple of eval_every ({eval_every}), "
                              "so that the last epoch is evaluated like LIBERO's 50 epochs every 5")
@@ -193,13 +196,13 @@ def run_lifelong(
         raise UserInputError("lifelong: expected a non-empty list of demo files")
     paths = [os.fspath(p) for p in demo_paths]
     data = select_tasks(load_demos(paths), keys)
-    defaults = BCConfig(epochs=epochs, seed=seed)
+    defaults = BCConfig(epochs=epochs, seed=seed, modes=modes)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
     config = {
         "protocol": "LIBERO lifelong (Liu et al. 2023)", "algorithm": "sequential", "suite": suite, "tasks": indices,
         "task_keys": keys, "data": data.files, "epochs": int(epochs), "eval_every": int(eval_every),
         "eval_epochs": list(range(0, int(epochs) + 1, int(eval_every))), "episodes": int(episodes), "seed": int(seed),
-        "max_steps": max_steps,
+        "max_steps": max_steps, "modes": int(modes),
     }
     out = Path(out)
     _prepare(out, config, resume)

@@ -89,7 +89,9 @@ QUICKSTART = ChainConfig()
 def _check_settings(out: str, cfg: ChainConfig) -> None:
     path = os.path.join(out, "chain.json")
     settings = json.loads(json.dumps(asdict(cfg)))  # tuples as lists, as stored
-    changed = changed_fields(read_json_file(path, "chain settings"), settings) if os.path.exists(path) else []
+    # chains written before chunking and before the mixture size was a setting (policies then had 5 components)
+    added = {"chunk": 1, "window": None, "policy_modes": 5}
+    changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
     if changed:
         raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
     atomic_write(path, json.dumps(settings, indent=2))

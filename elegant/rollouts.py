@@ -23,6 +23,7 @@ import numpy as np
 
 from annotations.collect import collect_episodes
 from annotations.dataset import DemoFile
+from base_suites import get_task
 from base_suites.env import LiberoEnv
 from elegant.evaluation import check_init_states, episode_start, open_policy
 from elegant.jiti import JITI
@@ -47,7 +48,7 @@ class _PolicySource:
         return self.agent(obs)
 
     def episode_attrs(self) -> dict[str, Any]:
-        explored = [d.step for d in self.agent.log if d.intervened]
+        explored = [d.step for d in self.agent.log if d.chosen != 0]  # not where no candidate was eligible
         return {"policy": self.policy_name, "rollout": self.agent.config(), "explored_steps": explored}
 
 
@@ -68,18 +69,22 @@ def collect_rollouts(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Roll `policy` (a directory or a callable) out `episodes` times per task of `suite` (None: all ten)
-    and write the episodes to `out` (demo layout, atomic, resumable). `explore`: the fraction of the
-    policy's decisions replaced by a random candidate within `trust_radius` (0: the policy as it is).
+    and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
+    the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
+    policy as it is; more episodes than `init_states` then repeat episodes exactly).
 
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
+    for spec in [get_task(suite, t) for t in (tasks if tasks is not None else range(10))]:
+        check_init_states(init_states, spec.n_init_states)  # before any env or file is made
     mode = "random" if explore > 0 else "base"
     agent = JITI(open_policy(policy), None, mode=mode, random_rate=explore, trust_radius=trust_radius,
                  n_candidates=n_candidates, seed=seed)
     name = policy if isinstance(policy, str) else type(policy).__name__
     source = _PolicySource(agent, suite, seed, None if init_states is None else list(init_states), name)
+    settings = {"policy": name, "rollout": agent.config(), "init_states": source.init_states, "max_steps": max_steps}
     path = collect_episodes(suite, tasks, episodes, out, source, seed=seed, resume=resume, progress=progress, desc="rollouts",
-                            horizon=lambda spec: max_steps or spec.default_max_steps)
+                            horizon=lambda spec: max_steps or spec.default_max_steps, settings=settings)
     with DemoFile(path) as f:
         demos = list(f)
     return {

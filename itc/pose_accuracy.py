@@ -11,10 +11,10 @@ share one region (two items in a basket, two pots on a stove) they cannot all si
 tolerance there grows per axis to the region's half size minus `region_edge_margin` (an ellipse test).
 A placement judged good that later leaves the tolerance while nobody holds it (slid or bounced out, or
 knocked away) is a violation at that step.
-An object pushed or dragged into its goal without ever being carried (a plate slid over the table) turns
-its sub-goal true as it crosses into the region, so at that instant it always sits at the region's edge,
-and LIBERO ends the episode right there: it is never judged at rest. Its placement is then the goal
-predicate itself (LIBERO's region test).
+An object pushed or dragged into a goal region without being carried there (a plate slid over the
+table) turns its sub-goal true as it crosses the region's edge, so at that instant it always sits at the
+edge: it is judged like a release instead, once at rest. LIBERO ends a single-goal episode right there,
+so it is then never judged, and its placement is the goal predicate itself (LIBERO's region test).
 """
 from __future__ import annotations
 
@@ -66,8 +66,8 @@ class PoseAccuracy(Constraint):
             attempt.released, attempt.rest_steps = True, 0
             attempt.release_xy = ctx.position(obj)[:2].copy()
         if goal_now and not self._goal_held[k] and not attempt.judged:
-            if not attempt.carried and not held:  # pushed in (see module doc)
-                attempt.judged = True  # not `placed`: it lies beyond the centre tolerance by construction
+            if placement.target_is_region and not attempt.carried and not held:  # pushed in: judge at rest
+                attempt.released, attempt.rest_steps, attempt.release_xy = True, 0, ctx.position(obj)[:2].copy()
                 return []
             return self._judge(ctx, placement, attempt)
         if attempt.released and not held:
@@ -76,6 +76,7 @@ class PoseAccuracy(Constraint):
                 attempt.released = False
                 if not attempt.judged and self._near(ctx, placement, attempt.release_xy):
                     return self._judge(ctx, placement, attempt)
+                attempt.carried = False  # at rest elsewhere: whatever moves it next without a grasp pushes it
         if attempt.placed and not held and not attempt.released:
             ok, error = self._error(ctx, placement)
             if not ok:

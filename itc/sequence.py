@@ -6,10 +6,10 @@ reached during the episode must respect the spec's precedence pairs and must not
 `undo_grace_steps` steps in a row, since contact-based predicates flicker while objects settle).
 Objects the task does not name must stay within `distractor_move` / `distractor_tilt` of their pose at
 reset (or, for one still settling then, where it first came to rest), and fixtures it does not name
-(drawers, doors, knobs) within `fixture_slide` / `fixture_hinge`. An object standing in the way of a
-placement, inside the target's footprint grown by the placed object's reach (libero_goal/5: the cream
-cheese stands where the plate must go), cannot stay put if the task is to succeed: it may be moved
-but not tipped over.
+(drawers, doors, knobs) within `fixture_slide` / `fixture_hinge`. An object standing where a placement
+still to be made will put its object (within `place_xy_tolerance` plus that object's reach of the
+target's centre; libero_goal/5: the cream cheese stands where the plate must go) cannot stay put if
+the task is to succeed: it may be moved, not tipped over.
 Each disturbance is reported once, at the step it happens.
 """
 from __future__ import annotations
@@ -51,24 +51,17 @@ class SequenceIntegrity(Constraint):
         for name in self._rest.settled - self._anchors.keys():
             axis = up_axis(ctx.rotation(name))
             self._anchors[name] = (ctx.position(name).copy(), axis, ctx.rotation(name) @ axis)
-            if any(self._inside_footprint(ctx, name, placement) for placement in self.spec.placements):
+            pending = [p for p in self.spec.placements if self._status[p.subgoal] != INITIAL]
+            if any(self._in_footprint(ctx, name, p) for p in pending):
                 self._in_the_way.add(name)
 
-    @staticmethod
-    def _inside_footprint(ctx: StepContext, name: str, placement) -> bool:
-        """Whether `name` stands where `placement` puts its object: inside the target (a region's
-        rectangle, or an object's or fixture's xy bounding box) grown by the placed object's reach."""
+    def _in_footprint(self, ctx: StepContext, name: str, placement) -> bool:
+        """Whether `name` stands where `placement` will put its object: within the centre tolerance plus
+        the object's reach (its farthest geometry from its centre, in xy) of the target's centre."""
         obj_xy = ctx.position(placement.obj)[:2]
         reach = float(np.max(np.linalg.norm(ctx.sim.geom_points(placement.obj)[:, :2] - obj_xy, axis=1)))
-        if placement.target_is_region:
-            region = ctx.region(placement.target)
-            if region.half_size is None:
-                return False
-            local = (region.rotation.T @ (ctx.position(name) - region.position))[:2]
-            return bool(np.all(np.abs(local) <= np.asarray(region.half_size[:2], dtype=float) + reach))
-        points = ctx.sim.geom_points(placement.target)[:, :2]
-        xy = ctx.position(name)[:2]
-        return bool(np.all(xy >= points.min(axis=0) - reach) and np.all(xy <= points.max(axis=0) + reach))
+        centre = ctx.region(placement.target).position if placement.target_is_region else ctx.position(placement.target)
+        return float(np.linalg.norm(ctx.position(name)[:2] - centre[:2])) <= self.params.place_xy_tolerance + reach
 
     def check(self, ctx: StepContext) -> list[str]:
         self._rest.update(ctx)
@@ -100,9 +93,9 @@ class SequenceIntegrity(Constraint):
         reasons = []
         p = self.params
         for name, (start, axis, start_up) in self._anchors.items():
-            moved = 0.0 if name in self._in_the_way else float(np.linalg.norm(ctx.position(name) - start))
+            moved = float(np.linalg.norm(ctx.position(name) - start))
             turned = angle_between(ctx.rotation(name) @ axis, start_up)
-            if moved > p.distractor_move or turned > p.distractor_tilt:
+            if (moved > p.distractor_move and name not in self._in_the_way) or turned > p.distractor_tilt:
                 if name not in self._disturbed:
                     self._disturbed.add(name)
                     reasons.append(

@@ -191,6 +191,8 @@ def test_a_chunk_critic_scores_flattened_chunks_normalised_step_by_step(annotate
     with torch.no_grad():
         by_hand = critic.network(torch.from_numpy(obs)[None], torch.from_numpy(scaled)[None]).amin(0)[0]
     assert q.shape == (5,) and np.allclose(q, by_hand.numpy(), atol=1e-5) and summary["steps"] == 4
+    with pytest.raises(UserInputError, match=r"actions \(N, 21\).*chunks of 3 actions"):
+        critic.q(state, chunks[:, :7])
     assert action_chunks(np.arange(6).reshape(3, 2), 2).tolist() == [[0, 1, 2, 3], [2, 3, 4, 5], [4, 5, 4, 5]]
     result = evaluate_critic(out, [annotated])  # held-out scoring builds each step's chunk from the demo
     assert result["transitions"] == summary["transitions"] and 0.0 <= result["auroc"] <= 1.0

@@ -143,3 +143,12 @@ def test_bad_arguments_are_user_errors(tmp_path):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "jiti", 1, 0, tmp_path)
     with pytest.raises(UserInputError, match="init states"):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, init_states=[])
+
+
+def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(runs):
+    out = runs["root"] / "older"
+    shutil.copytree(runs["root"] / "full", out)
+    config = json.loads((out / "config.json").read_text())
+    del config["init_states"], config["jiti"]["chunk"], config["jiti"]["random_rate"]
+    (out / "config.json").write_text(json.dumps(config))
+    assert run(out, resume=True)["episodes"] == 2

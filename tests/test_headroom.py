@@ -124,3 +124,5 @@ def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
     assert [a[0] for a in actions[:6]] == [0.0, 0.0, 0.5, 0.5, 0.0, 0.0]  # the candidate chunk, then the policy again
     with pytest.raises(UserInputError, match="multiples of 2"):
         intervention_headroom("libero_object", 0, ChunkedPlunge(), ChunkHeightCritic(), every=3, first=2)
+    with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 2"):
+        intervention_headroom("libero_object", 0, ChunkedPlunge(), HeightCritic(), every=4, first=2)

@@ -129,3 +129,14 @@ def test_cli_refuses_in_one_line(demos, tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "eval_every must be a positive integer" in err
+
+
+def test_a_run_from_before_the_mixture_size_setting_resumes_with_its_five_components(demos, tmp_path):
+    out = tmp_path / "old"
+    result = run_lifelong(SUITE, TASKS, [demos], out, **{**SETTINGS, "modes": 5})
+    config = json.loads((out / "config.json").read_text())
+    del config["modes"]  # as written before `modes` was recorded, when every run used 5
+    (out / "config.json").write_text(json.dumps(config))
+    with pytest.raises(UserInputError, match="field 'modes' is 5 but this run has 16"):
+        run_lifelong(SUITE, TASKS, [demos], out, resume=True, **SETTINGS)
+    assert run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "modes": 5})["metrics"] == result["metrics"]

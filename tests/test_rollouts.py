@@ -47,6 +47,9 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
         assert all(0.0 < demo.actions[t][0] <= 0.3 for t in explored)
 
     interrupted_at_second_episode(monkeypatch, lambda: collect_into(tmp_path / "cut.hdf5"))
+    with pytest.raises(UserInputError, match="cannot resume with different rollout"):
+        collect_rollouts(SUITE, [TASK], Lower(), 2, str(tmp_path / "cut.hdf5"), explore=0.3, trust_radius=0.3, init_states=INITS,
+                         seed=4, max_steps=STEPS, progress=False, resume=True)
     resumed = collect_into(tmp_path / "cut.hdf5", resume=True)
     with DemoFile(summary["out"]) as a, DemoFile(resumed["out"]) as b:
         for da, db in zip(a, b, strict=True):
@@ -78,3 +81,13 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
 def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
     with pytest.raises(UserInputError, match="expected indices in 0..49"):
         collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), init_states=[60], progress=False)
+    assert not list(tmp_path.iterdir())  # refused before any file was made
+
+
+def test_init_state_ranges_parse_and_bad_ones_are_refused_in_one_line():
+    from elegant.cli import parse_indices
+
+    assert parse_indices("0-3,7, 9-10", "--init-states") == [0, 1, 2, 3, 7, 9, 10] and parse_indices(None, "--x") is None
+    for bad, message in (("3-", "expected indices and ranges"), ("9-5", "runs backwards"), ("a", "expected indices")):
+        with pytest.raises(UserInputError, match=message):
+            parse_indices(bad, "--init-states")
