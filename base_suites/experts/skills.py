@@ -138,6 +138,7 @@ MISPLACE_OFFSET = (0.05, 0.08)  # the misplace knob sets objects down this far f
 # 5 cm drop limit. The carrying height alone leaves only its 5 cm margin over a tall target.
 DROP_CLEARANCE = 0.10
 MISPLACE_CLEARANCE = 0.015  # ... or this far clear of the container the goal region belongs to
+MISPLACE_REACHED = 0.06  # the object let go within this xy distance of the wrong spot was misplaced there
 
 
 def _misplaced_xy(ctx: SkillContext, target: str, held: str, goal_xy: np.ndarray) -> np.ndarray:
@@ -156,6 +157,11 @@ def _misplaced_xy(ctx: SkillContext, target: str, held: str, goal_xy: np.ndarray
     return goal_xy + distance * direction
 
 
+def _over(view: SimView, obj: str, spot_xy: np.ndarray) -> bool:
+    """Whether `obj` hangs over (within `MISPLACE_REACHED` of) the spot in xy."""
+    return bool(np.linalg.norm(view.position(obj)[:2] - spot_xy) < MISPLACE_REACHED)
+
+
 def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
     # Tilt about the horizontal axis across the fingers: the held object swings out of upright.
     axis = np.cross(finger_axis(yaw), [0.0, 0.0, 1.0])
@@ -171,7 +177,8 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     upright = grasp_rotation(yaw)
     goal_xy = _target_xy(view, target, held=obj, shared=shared)
     # The misplace event is recorded at the release over the wrong spot, not when the offset is drawn:
-    # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing.
+    # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing, nor
+    # does one whose shaking (`jerky`) carry let go far short of the wrong spot: it failed to carry.
     misplaced = "misplace" in ctx.knobs and isinstance(target, str)
     if misplaced:
         goal_xy = _misplaced_xy(ctx, target, obj, goal_xy)
@@ -193,7 +200,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
         release_z = carry_height(view, obj, goal_xy, margin=DROP_CLEARANCE)
         if view.eef_position()[2] < release_z:
             yield from ctx.goto(_above(view.eef_position(), release_z), upright, CLOSE, tol=0.015, rot_tol=0.1, max_steps=40)
-        ctx.events.extend(["misplace", "drop"] if misplaced else ["drop"])
+        ctx.events.extend(["misplace", "drop"] if misplaced and _over(view, obj, goal_xy) else ["drop"])
         yield from ctx.hold(OPEN, 10)
         yield from ctx.hold(OPEN, 10)
         return True
@@ -208,7 +215,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
         if any(e not in ("gripper", "robot") for e in touching) and np.linalg.norm(xy_error) < 0.03:
             break
         yield ctx.servo.action(np.array([*xy_error, -0.02 if aligned else 0.0]), rotation_error(upright, view.eef_rotation()), CLOSE, speed=0.35)
-    if misplaced:
+    if misplaced and _over(view, obj, goal_xy):
         ctx.events.append("misplace")
     yield from ctx.hold(OPEN, 10, upright)
     up = view.eef_position() + np.array([0, 0, 0.10])
