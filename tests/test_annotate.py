@@ -127,14 +127,15 @@ def recorded(tmp_path_factory):
 @pytest.mark.sim
 def test_annotate_file_replays_states_into_labels(recorded, tmp_path):
     path, online = recorded
-    assert online[0].violated == [] and online[1].violated == ["collision"]
+    # the cheese falls next to the bowl it belongs in: a drop (collision) that also leaves it off target
+    assert online[0].violated == [] and online[1].violated == ["pose_accuracy", "collision"]
     hover_frames = len(online[0].steps["alignment"])
     assert hover_frames <= 25, "the hover fits one window"
     labels = write_csv(tmp_path / "human.csv", [["demo_0", 0, hover_frames - 1, "alignment", "violated"]])
     out = str(tmp_path / "annotated.hdf5")
     summary = annotate_file(path, out, labels_csv=labels, gamma=0.9, progress=False)
     assert summary["demos"] == 2 and summary["human_label_rows"] == 1 and summary["elegant_rate"] == 0.0
-    assert summary["violation_rate"] == {"sequence": 0.0, "pose_accuracy": 0.0, "alignment": 0.5, "collision": 0.5}
+    assert summary["violation_rate"] == {"sequence": 0.0, "pose_accuracy": 0.5, "alignment": 0.5, "collision": 0.5}
     with DemoFile(out, require_labels=True) as annotated:
         meta = annotated.attrs["annotation"]
         assert meta["gamma"] == 0.9 and meta["segment_length"] == 25 and meta["itc_params"]["drop_height"] == 0.05
@@ -143,7 +144,7 @@ def test_annotate_file_replays_states_into_labels(recorded, tmp_path):
         for c in CRITERIA:
             assert np.array_equal(drop.itc[c], online[1].steps[c]), c
             assert np.array_equal(drop.itc_segments[c], online[1].segments[c]), c
-        assert drop.attrs["violated"] == ["collision"] and drop.attrs["elegant"] is False
+        assert drop.attrs["violated"] == ["pose_accuracy", "collision"] and drop.attrs["elegant"] is False
         assert np.array_equal(drop.elegance_reward, online[1].elegance_reward)
         assert np.allclose(drop.mc_return, discounted_return_to_go(drop.elegance_reward, 0.9))
         # the human label turned the hover's only window into an alignment violation
