@@ -72,7 +72,7 @@ def test_drop_knob_releases_from_height_and_is_recorded(suite, task, reset_seed)
 
 @pytest.mark.parametrize("seed, inside", [(0, False), (3, True)])
 def test_misplace_sets_the_object_down_off_centre_in_or_beside_its_container(seed, inside):
-    """Into a basket the wrong spot is either inside it 4.5-5.5 cm off-centre (a success that is not elegant,
+    """Into a basket the wrong spot is either inside it 4-5 cm off-centre (a success that is not elegant,
     the way a BC policy errs) or beside it: released 5-8 cm off-centre, the basket's sloped wall slid the
     object back within tolerance (libero_object/5, init 5), and the knob went unseen by the labels.
     Beside it, the event comes as the object is let go, not when the offset is drawn: an episode that

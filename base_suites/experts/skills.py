@@ -143,16 +143,13 @@ MISPLACE_REACHED = 0.06  # the object let go within this xy distance of the wron
 # but not elegantly. Learned policies err this way (a BC policy set cans down 3.0-4.8 cm from the
 # basket's centre), so a critic needs demos of it, not only of objects set down beside the container.
 NEAR_MISS_SHARE = 0.5
-# Off the goal spot (m), past the ITC's 3 cm tolerance: the basket's sloped floor slides an object set
-# down there back by up to 1.5 cm, or lets it lean on the wall (at 4-5 cm, a tomato sauce slid back to
-# 1.7 cm, leaning: the labels saw the lean, not the misplacement; label benchmark seed 0, libero_object/5).
-NEAR_MISS_OFFSET = (0.045, 0.055)
-NEAR_MISS_WALL = 0.005  # with the object's footprint this far inside the container's outline
+NEAR_MISS_OFFSET = (0.04, 0.05)  # off the goal spot (m): past the ITC's 3 cm tolerance ...
+NEAR_MISS_WALL = 0.005  # ... with the object's footprint this far inside the container's outline
 
 
 def _misplaced_xy(ctx: SkillContext, target: str, held: str, goal_xy: np.ndarray) -> tuple[np.ndarray, bool]:
     """The wrong spot for the misplace knob: 5-8 cm off the goal, in a random direction. A goal on or in a
-    movable object (basket, bowl, plate) gets its object set down either inside that object 4.5-5.5 cm
+    movable object (basket, bowl, plate) gets its object set down either inside that object 4-5 cm
     off-centre (where the container has room for it) or beside it: a basket's sloped wall funnels an
     object released 5-8 cm off-centre back to its middle, undoing the knob. Returns the spot and whether
     it lies inside the container."""
