@@ -2,12 +2,12 @@
 
 A critic trained on demonstrations only knows the demonstrator's ways of failing. A BC policy fails in
 its own: on libero_object/0 a policy set the soup can down 3-5 cm off the basket's centre (the limit is
-3 cm), which neither the clean expert (within 1.5 cm) nor, before expert scripted-4, its `misplace`
-knob (beside the basket) ever did, so no demo-trained critic could rank the actions that lead there.
-Here the policy is rolled out in the real env, optionally exploring (JITI's mode "random": at a random
-fraction of its decisions a random candidate within the trust radius, i.e. the alternatives JITI can
-choose among), and every episode is written in the demonstrations' HDF5 layout. `elegant annotate`
-then labels it like any demo file and `elegant train-critic` takes demos and rollouts together.
+3 cm), which neither the clean expert (within 1.5 cm) nor its `misplace` knob (beside the basket) ever
+did, so no demo-trained critic could rank the actions that lead there. Here the policy is rolled out in
+the real env, optionally exploring (JITI's mode "random": at a random fraction of its decisions a random
+candidate within the trust radius, i.e. the alternatives JITI can choose among), and every episode is
+written in the demonstrations' HDF5 layout. `elegant annotate` then labels it like any demo file and
+`elegant train-critic` takes demos and rollouts together.
 
 Starts: episode i of a task starts where `elegant eval` episode i would (`episode_start` with the same
 seed and `init_states`). To keep an evaluation honest, collect rollouts on init states the evaluation
