@@ -37,8 +37,7 @@ class ITCParams:
     # -- pose accuracy: where a placed object comes to rest.
     place_xy_tolerance: float = 0.03
     """Largest xy distance (m) from the target's centre; LIBERO's own On() for objects uses 3 cm. The
-    scripted expert places within ~1 cm; its `misplace` knob 4-5 cm off inside a container, or 5-8 cm
-    off, or beside the container."""
+    scripted expert places within ~1 cm; its `misplace` knob 5-8 cm off."""
     region_edge_margin: float = 0.02
     """Where several goal objects share one region, the tolerance per axis grows to the region's half
     size minus this margin (m), so two items fit in a basket while one hanging over the rim fails."""

@@ -70,40 +70,33 @@ def test_drop_knob_releases_from_height_and_is_recorded(suite, task, reset_seed)
     assert "collision" in verdict["violated"] and any("dropped" in e[-1] for e in verdict["events"]), verdict
 
 
-@pytest.mark.parametrize("seed, inside", [(0, False), (3, True)])
-def test_misplace_sets_the_object_down_off_centre_in_or_beside_its_container(seed, inside):
-    """Into a basket the wrong spot is either inside it 4-5 cm off-centre (a success that is not elegant,
-    the way a BC policy errs) or beside it: released 5-8 cm off-centre, the basket's sloped wall slid the
-    object back within tolerance (libero_object/5, init 5), and the knob went unseen by the labels.
-    Beside it, the event comes as the object is let go, not when the offset is drawn: an episode that
-    times out before the release misplaced nothing. Inside it, touching down ends the episode (the goal
-    holds), so the event comes as the descent starts, the object still in the hand."""
+def test_misplace_sets_the_object_down_beside_its_container_and_is_recorded_at_the_release():
+    """The misplace event comes as the object is let go over the wrong spot, not when the offset is drawn
+    at the pick-up spot: an episode that times out before the release misplaced nothing. Into a basket
+    the wrong spot is beside it: released 5-8 cm off-centre, the basket's sloped wall slid the object back
+    within tolerance (libero_object/5, init 5), and the knob went unseen by the labels."""
     env = ITCWrapper(make_env("libero_object", 3, seed=0))
     obs, _ = env.reset(options={"init_state": 0})
     sim = env.unwrapped.sim
     (_, obj, region), = env.unwrapped.task.goal
     basket = sim.region(region).parent
-    expert = ScriptedExpert(env.unwrapped, quality={"misplace": 1.0}, seed=seed)
+    expert = ScriptedExpert(env.unwrapped, quality={"misplace": 1.0}, seed=0)
     expert.reset(env.unwrapped.metadata, episode=0)
-    touching_at_event = None
+    supports_at_event = None
     for _ in range(env.unwrapped.max_steps):
         obs, _, terminated, truncated, info = env.step(expert(obs))
-        if touching_at_event is None and "misplace" in expert.events:
-            touching_at_event = {c.other(obj) for c in sim.contacts() if c.involves(obj)}
+        if supports_at_event is None and "misplace" in expert.events:
+            supports_at_event = {c.other(obj) for c in sim.contacts() if c.involves(obj)} - {"gripper", "robot"}
+            basket_xy = sim.geom_points(basket)[:, :2]
+            held_xy = sim.geom_points(obj)[:, :2]
         if terminated or truncated:
             break
-    basket_xy, held_xy = sim.geom_points(basket)[:, :2], sim.geom_points(obj)[:, :2]
-    off_centre = float(np.linalg.norm(sim.position(obj)[:2] - sim.region(region).position[:2]))
     env.close()
-    assert "pose_accuracy" in info["itc_verdict"]["violated"]
-    if inside:
-        assert info["success"] and 0.03 < off_centre < 0.06, off_centre  # the ITC allows 3 cm
-        assert touching_at_event == {"gripper"}  # still carried when the event was recorded
-        return
-    assert not info["success"] and "arena" in touching_at_event  # set down on the floor, about to be let go
+    assert supports_at_event and basket not in supports_at_event  # set down on the floor, about to be let go
     # beside the basket: the object's footprint clear of the basket's along some axis
     assert held_xy[:, 0].min() > basket_xy[:, 0].max() or held_xy[:, 0].max() < basket_xy[:, 0].min() \
         or held_xy[:, 1].min() > basket_xy[:, 1].max() or held_xy[:, 1].max() < basket_xy[:, 1].min()
+    assert not info["success"] and "pose_accuracy" in info["itc_verdict"]["violated"]
 
 
 def _collect(tmp_path, name, **kw):

@@ -139,20 +139,12 @@ MISPLACE_OFFSET = (0.05, 0.08)  # the misplace knob sets objects down this far f
 DROP_CLEARANCE = 0.10
 MISPLACE_CLEARANCE = 0.015  # ... or this far clear of the container the goal region belongs to
 MISPLACE_REACHED = 0.06  # the object let go within this xy distance of the wrong spot was misplaced there
-# Half of the misplaces at a container set the object down inside it, off-centre: the task succeeds,
-# but not elegantly. Learned policies err this way (a BC policy set cans down 3.0-4.8 cm from the
-# basket's centre), so a critic needs demos of it, not only of objects set down beside the container.
-NEAR_MISS_SHARE = 0.5
-NEAR_MISS_OFFSET = (0.04, 0.05)  # off the goal spot (m): past the ITC's 3 cm tolerance ...
-NEAR_MISS_WALL = 0.005  # ... with the object's footprint this far inside the container's outline
 
 
-def _misplaced_xy(ctx: SkillContext, target: str, held: str, goal_xy: np.ndarray) -> tuple[np.ndarray, bool]:
+def _misplaced_xy(ctx: SkillContext, target: str, held: str, goal_xy: np.ndarray) -> np.ndarray:
     """The wrong spot for the misplace knob: 5-8 cm off the goal, in a random direction. A goal on or in a
-    movable object (basket, bowl, plate) gets its object set down either inside that object 4-5 cm
-    off-centre (where the container has room for it) or beside it: a basket's sloped wall funnels an
-    object released 5-8 cm off-centre back to its middle, undoing the knob. Returns the spot and whether
-    it lies inside the container."""
+    movable object (basket, bowl, plate) gets its object set down beside that object instead: a basket's
+    sloped wall funnels an object released 5-8 cm off-centre back to its middle, undoing the knob."""
     view = ctx.view
     angle = ctx.rng.uniform(0, 2 * np.pi)
     direction = np.array([np.cos(angle), np.sin(angle)])
@@ -160,13 +152,9 @@ def _misplaced_xy(ctx: SkillContext, target: str, held: str, goal_xy: np.ndarray
     container = view.region(target).parent if target in view.regions else target
     if container in view.objects:
         beyond_wall = float(np.max((view.geom_points(container)[:, :2] - goal_xy) @ direction))
-        held_offsets = (view.geom_points(held)[:, :2] - view.position(held)[:2]) @ direction
-        held_reach = float(np.max(-held_offsets))  # towards the container, from beside it
-        near_miss = min(ctx.rng.uniform(*NEAR_MISS_OFFSET), beyond_wall - float(np.max(held_offsets)) - NEAR_MISS_WALL)
-        if ctx.rng.uniform() < NEAR_MISS_SHARE and near_miss >= NEAR_MISS_OFFSET[0]:
-            return goal_xy + near_miss * direction, True
+        held_reach = float(np.max((view.geom_points(held)[:, :2] - view.position(held)[:2]) @ -direction))
         distance = max(distance, beyond_wall + held_reach + MISPLACE_CLEARANCE)
-    return goal_xy + distance * direction, False
+    return goal_xy + distance * direction
 
 
 def _over(view: SimView, obj: str, spot_xy: np.ndarray) -> bool:
@@ -191,9 +179,9 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     # The misplace event is recorded at the release over the wrong spot, not when the offset is drawn:
     # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing, nor
     # does one whose shaking (`jerky`) carry let go far short of the wrong spot: it failed to carry.
-    misplaced, inside = "misplace" in ctx.knobs and isinstance(target, str), False
+    misplaced = "misplace" in ctx.knobs and isinstance(target, str)
     if misplaced:
-        goal_xy, inside = _misplaced_xy(ctx, target, obj, goal_xy)
+        goal_xy = _misplaced_xy(ctx, target, obj, goal_xy)
     z_carry = carry_height(view, obj, goal_xy)
     carry_rot = upright
     if "tilt" in ctx.knobs and isinstance(target, str):
@@ -212,15 +200,10 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
         release_z = carry_height(view, obj, goal_xy, margin=DROP_CLEARANCE)
         if view.eef_position()[2] < release_z:
             yield from ctx.goto(_above(view.eef_position(), release_z), upright, CLOSE, tol=0.015, rot_tol=0.1, max_steps=40)
-        # dropped over a spot inside the container, the object may well bounce to its middle: a drop only
-        ctx.events.extend(["misplace", "drop"] if misplaced and not inside and _over(view, obj, goal_xy) else ["drop"])
+        ctx.events.extend(["misplace", "drop"] if misplaced and _over(view, obj, goal_xy) else ["drop"])
         yield from ctx.hold(OPEN, 10)
         yield from ctx.hold(OPEN, 10)
         return True
-    # Inside the container the goal turns true as the object touches down, and LIBERO ends the episode
-    # right there: that misplace is recorded as the descent starts over the wrong spot.
-    if inside and _over(view, obj, goal_xy):
-        ctx.events.append("misplace")
     # Descend slowly until the held object touches its support (or anything but the robot).
     # Only go down while the object is over its goal: correcting sideways first keeps it off rims and
     # handles it would otherwise be set down on.
@@ -232,7 +215,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
         if any(e not in ("gripper", "robot") for e in touching) and np.linalg.norm(xy_error) < 0.03:
             break
         yield ctx.servo.action(np.array([*xy_error, -0.02 if aligned else 0.0]), rotation_error(upright, view.eef_rotation()), CLOSE, speed=0.35)
-    if misplaced and not inside and _over(view, obj, goal_xy):
+    if misplaced and _over(view, obj, goal_xy):
         ctx.events.append("misplace")
     yield from ctx.hold(OPEN, 10, upright)
     up = view.eef_position() + np.array([0, 0, 0.10])
