@@ -15,7 +15,7 @@ import tempfile
 
 import torch
 
-from critics import REWARDS, evaluate_critic, train_critic
+from critics import BACKUPS, REWARDS, evaluate_critic, train_critic
 
 
 def main() -> None:
@@ -29,6 +29,7 @@ def main() -> None:
     parser.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
     parser.add_argument("--cql-weight", type=float, default=5.0)
     parser.add_argument("--reward", choices=REWARDS, default="step", help="violation penalty per step or per 25-frame window")
+    parser.add_argument("--backup", choices=BACKUPS, default="dataset", help="the TD target's next action (see CalQLLoss)")
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--out", help="critic directory to keep (default: a temporary one)")
     parser.add_argument("--no-progress", action="store_true")
@@ -38,7 +39,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="critic_quality_") as tmp:
         out = args.out or tmp
         summary = train_critic([args.train], out, steps=args.steps, batch_size=args.batch_size, hidden=args.hidden,
-                               seed=args.seed, gamma=args.gamma, cql_weight=args.cql_weight, reward=args.reward, progress=not args.no_progress)
+                               seed=args.seed, gamma=args.gamma, cql_weight=args.cql_weight, reward=args.reward,
+                               backup=args.backup, progress=not args.no_progress)
         report = evaluate_critic(out, [args.heldout])
     print(json.dumps({"train": summary, "heldout": report}))
 

@@ -9,6 +9,8 @@ Each step t of each demo becomes one transition, in TorchRL's layout (batch = tr
                                       discount (by default the annotation's; Cal-QL's floor;
                                       NO_FLOOR for demos that end without success)
     next/observation   (D,)  float32  the same encoding of the state after the action
+    next/action        (A,)  float32  the dataset's next action (the demo's following step's; its own at
+                                      the demo's last step): what the in-sample backup bootstraps with
     next/reward        (1,)  float32  the violation penalty: 0 where all four ITCs hold, -1 where one
                                       is violated, judged per step (r_t - 1 of the elegance reward r_t,
                                       `reward="step"`) or per 25-frame window (`reward="segment"`: every
@@ -22,7 +24,7 @@ action is the chunk a_t .. a_{t+chunk-1} of its demo, each step normalised as ab
 (chunk * A,), repeating the demo's last action past its end, as the BC policy is trained. TorchRL's
 `MultiStep` turns the per-step transitions into chunk transitions: next/reward becomes the discounted
 sum of the chunk's penalties, next/observation the state after the chunk (or after the demo's last step),
-and `steps_to_next_obs` (1,) int64 how many steps that is, so the loss discounts the bootstrap by
+next/action the chunk that starts there, and `steps_to_next_obs` (1,) int64 how many steps that is, so the loss discounts the bootstrap by
 gamma ** steps_to_next_obs (Q-chunking's unbiased chunk backup). next/done, terminated and truncated are
 those of the chunk's last step (`MultiStep` keeps step t's). `mc_return` stays the per-step return-to-go
 from t, which is exactly the value of the chunk executed from t in the dataset.
@@ -80,9 +82,11 @@ class TransitionData:
         return int(self.transitions["action"].shape[-1])
 
     def fingerprint(self) -> str:
-        """A digest of every transition: a resumed training run checks it still reads the same data."""
+        """A digest of every transition: a resumed training run checks it still reads the same data.
+        next/action is left out: it follows from the actions and the demo ends, and runs checkpointed before
+        it existed still resume."""
         digest = hashlib.sha256()
-        for key in sorted(self.transitions.keys(True, True), key=str):
+        for key in sorted((k for k in self.transitions.keys(True, True) if k != ("next", "action")), key=str):
             digest.update(str(key).encode())
             digest.update(self.transitions.get(key).numpy().tobytes())
         return digest.hexdigest()
@@ -184,6 +188,12 @@ def action_chunks(actions: np.ndarray, chunk: int) -> np.ndarray:
     return actions[ahead].reshape(len(actions), -1)
 
 
+def _following(rows: torch.Tensor, offsets: torch.Tensor | int) -> torch.Tensor:
+    """Row t + offsets[t] of one demo's rows, its last row past its end."""
+    index = (torch.arange(len(rows)) + offsets).clamp(max=len(rows) - 1)
+    return rows[index]
+
+
 def chunk_transitions(transitions: TensorDict, lengths: Sequence[int], chunk: int, gamma: float) -> TensorDict:
     """Per-step transitions of demos stored back to back (`lengths` steps each) -> chunk transitions (see
     the module docstring); chunk 1 returns them unchanged."""
@@ -197,12 +207,14 @@ def chunk_transitions(transitions: TensorDict, lengths: Sequence[int], chunk: in
         to_next = stepped["steps_to_next_obs"].reshape(steps)
         last = torch.arange(steps) + to_next - 1  # the chunk's last step
         flags = {key: demo["next", key][last] for key in ("done", "terminated", "truncated")}
+        chunks = torch.from_numpy(action_chunks(demo["action"].numpy(), chunk))
         out.append(TensorDict({
             "observation": demo["observation"],
-            "action": torch.from_numpy(action_chunks(demo["action"].numpy(), chunk)),
+            "action": chunks,
             "mc_return": demo["mc_return"],
             "steps_to_next_obs": to_next.unsqueeze(-1),
-            "next": {"observation": stepped["next", "observation"], "reward": stepped["next", "reward"], **flags},
+            "next": {"observation": stepped["next", "observation"], "reward": stepped["next", "reward"],
+                     "action": _following(chunks, to_next), **flags},
         }, batch_size=[steps]))
     return torch.cat(out)
 
@@ -272,14 +284,17 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
     mc_return = torch.where(truncated_rows, torch.full_like(mc_return, NO_FLOOR), mc_return)
 
     normalization = Normalization.fit(obs, actions, encoder.state_dim)
+    lengths = [len(d.reward) for d in demos]
+    scaled_actions = torch.from_numpy(normalization.actions(actions))
     transitions = TensorDict(
         {
             "observation": torch.from_numpy(normalization.observations(obs)),
-            "action": torch.from_numpy(normalization.actions(actions)),
+            "action": scaled_actions,
             "mc_return": _column(mc_return),
             "next": {
                 "observation": torch.from_numpy(normalization.observations(next_obs)),
                 "reward": _column(penalty),
+                "action": torch.cat([_following(a, 1) for a in scaled_actions.split(lengths)]),
                 "done": _column(done),
                 "terminated": _column(torch.from_numpy(terminal)),
                 "truncated": _column(torch.from_numpy(last & ~terminal)),
@@ -287,7 +302,7 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
         },
         batch_size=[len(penalty)],
     )
-    transitions = chunk_transitions(transitions, [len(d.reward) for d in demos], int(chunk), gamma)
+    transitions = chunk_transitions(transitions, lengths, int(chunk), gamma)
     return TransitionData(transitions, encoder, normalization, float(gamma), len(demos), int(chunk))
 
 

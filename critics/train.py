@@ -31,7 +31,7 @@ from base_suites.atomic import atomic_write, changed_fields, library_versions
 from base_suites.errors import UserInputError, unknown_choice
 from critics.artifact import atomic_torch_save, save_critic
 from critics.data import REWARDS, TransitionData, load_transitions, make_replay_buffer
-from critics.loss import CalQLLoss
+from critics.loss import BACKUPS, CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
 CHECKPOINT_FORMAT = "libero-elegant/critic-checkpoint/1"
@@ -65,6 +65,7 @@ class TrainConfig:
     gamma: float | None = None  # None: the annotation's
     reward: str = "step"  # the violation penalty per step or per window (critics.data.REWARDS)
     chunk: int = 1  # actions per scored decision: the chunk length of the policy the critic will judge
+    backup: str = "dataset"  # the TD target's next action (critics.loss.BACKUPS; see CalQLLoss)
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
@@ -77,6 +78,8 @@ class TrainConfig:
             raise UserInputError(f"train-critic: gamma must lie in (0, 1), got {self.gamma}")
         if self.reward not in REWARDS:
             raise unknown_choice("train-critic reward", self.reward, REWARDS)
+        if self.backup not in BACKUPS:
+            raise unknown_choice("train-critic backup", self.backup, BACKUPS)
 
 
 class _Run:
@@ -89,7 +92,7 @@ class _Run:
         self.loss = CalQLLoss(
             actor, critic, gamma=data.gamma, n_actions=cfg.n_actions, cql_weight=cfg.cql_weight,
             temperature=cfg.temperature, calibrate=cfg.calibrate, with_lagrange=cfg.with_lagrange,
-            target_action_gap=cfg.target_action_gap,
+            target_action_gap=cfg.target_action_gap, backup=cfg.backup,
         )
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         groups = [
@@ -144,7 +147,7 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
-    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1})
+    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1, "backup": "policy"})
     if changed:
         raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
                              + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed) + ")")
@@ -195,6 +198,7 @@ def train_critic(
     gamma: float | None = None,
     reward: str = "step",
     chunk: int = 1,
+    backup: str = "dataset",
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -205,7 +209,8 @@ def train_critic(
     uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
     cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
     annotation's), reward ("step" or "segment") and chunk (actions per scored decision, the chunk length of
-    the policy the critic will judge): see `critics.data.load_transitions`. Learning rates and tau are `TrainConfig`'s.
+    the policy the critic will judge): see `critics.data.load_transitions`; backup ("dataset" or "policy",
+    the TD target's next action): see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -215,6 +220,7 @@ def train_critic(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
         log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
+        backup=backup,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)

@@ -213,6 +213,8 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reward", default="step",
                    help="step: penalise each violating step; segment: every step of a violating 25-frame window")
     p.add_argument("--chunk", type=int, default=1, help="actions per scored decision (the chunk length of the policy to judge)")
+    p.add_argument("--backup", default="dataset",
+                   help="the TD target's next action: dataset (the demo's next action, in-sample) or policy (a' ~ pi, Cal-QL's)")
     p.add_argument("--resume", action="store_true")
 
 
@@ -222,7 +224,8 @@ def _train_critic(args: argparse.Namespace) -> dict:
 
     return train_critic(args.data, args.out, steps=args.steps, batch_size=args.batch_size, seed=args.seed, resume=args.resume,
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
-                        with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk)
+                        with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk,
+                        backup=args.backup)
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:

@@ -102,6 +102,12 @@ def test_transitions_follow_the_documented_layout(annotated):
     assert np.allclose(raw_obs[: len(d0), d0.shape[1]:], 0, atol=1e-5)  # padding of the narrower task
     assert np.allclose(td["next", "observation"][: len(d0) - 1].numpy(), obs[1: len(d0)], atol=1e-6)
 
+    # the dataset's next action: the demo's following step's, its own at the demo's last step
+    ends = np.cumsum([len(d["actions"]) for d in raw]) - 1
+    following = np.arange(total) + 1
+    following[ends] = ends
+    np.testing.assert_array_equal(td["next", "action"].numpy(), td["action"].numpy()[following])
+
     # actions mapped onto [-1, 1] by the dataset's bounds
     actions = td["action"].numpy()
     assert np.allclose(actions.min(0), -1) and np.allclose(actions.max(0), 1)
@@ -205,7 +211,8 @@ def test_normalization_round_trips_and_guards_constant_dimensions():
 
 def test_chunk_transitions_sum_the_chunks_penalties_and_bootstrap_after_the_chunk(annotated):
     """chunk=4: step t's action is a_t..a_t+3 (last repeated past the end), its reward the discounted sum
-    of those steps' penalties, its next state the one after the chunk, its end flags the chunk's last step's."""
+    of those steps' penalties, its next state the one after the chunk, its next action the chunk that
+    starts there, its end flags the chunk's last step's."""
     per_step, chunked = load_transitions([annotated], gamma=0.5), load_transitions([annotated], gamma=0.5, chunk=4)
     one, four = per_step.transitions, chunked.transitions
     assert chunked.chunk == 4 and four.batch_size == one.batch_size and four["action"].shape[-1] == 28
@@ -222,6 +229,7 @@ def test_chunk_transitions_sum_the_chunks_penalties_and_bootstrap_after_the_chun
             assert float(four["next", "reward"][t]) == pytest.approx(reward)
             assert int(four["steps_to_next_obs"][t]) == steps
             np.testing.assert_array_equal(four["next", "observation"][t].numpy(), one["next", "observation"][t + steps - 1].numpy())
+            np.testing.assert_array_equal(four["next", "action"][t].numpy(), four["action"][min(t + steps, end)].numpy())
             for flag in ("done", "terminated", "truncated"):
                 assert bool(four["next", flag][t]) == bool(one["next", flag][t + steps - 1])
         np.testing.assert_array_equal(four["mc_return"][rows].numpy(), one["mc_return"][rows].numpy())

@@ -155,6 +155,31 @@ def test_td_target_bootstraps_only_from_non_terminal_states():
     assert torch.allclose(terms.target, expected)
 
 
+def test_dataset_backup_bootstraps_from_the_datasets_next_action_not_the_actor():
+    batch = make_batch()
+    batch["next", "action"] = torch.rand(BATCH, ACT, generator=torch.Generator().manual_seed(5)) * 2 - 1
+    loss = make_loss(backup="dataset")
+    assert ("next", "action") in loss.in_keys and ("next", "action") not in make_loss().in_keys
+    terms = loss.terms(batch)
+    with torch.no_grad(), loss.target_qvalue_network_params.data.to_module(loss.qvalue_network):
+        next_q = loss.qvalue_network(batch["next", "observation"], batch["next", "action"].unsqueeze(1)).amin(0).squeeze(-1)
+    reward, terminated = batch["next", "reward"].squeeze(-1), batch["next", "terminated"].squeeze(-1)
+    assert torch.allclose(terms.target, torch.where(terminated, reward, reward + 0.9 * next_q))
+    with torch.no_grad():  # the actor does not enter the target
+        for p in loss.actor_network_params.values(True, True):
+            p.add_(1.0)
+    assert torch.allclose(loss.terms(batch).target, terms.target)
+    # while the policy backup ignores the dataset's next action
+    policy = make_loss()
+    torch.manual_seed(3)
+    before = policy.terms(batch).target
+    batch["next", "action"] = -batch["next", "action"]
+    torch.manual_seed(3)
+    assert torch.allclose(policy.terms(batch).target, before)
+    with pytest.raises(ValueError, match="backup must be one of policy, dataset"):
+        make_loss(backup="expectile")
+
+
 def test_soft_update_moves_targets_towards_the_critics():
     loss = make_loss()
     updater = SoftUpdate(loss, tau=0.25)
