@@ -29,7 +29,7 @@ def main() -> None:
     parser.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
     parser.add_argument("--cql-weight", type=float, default=5.0)
     parser.add_argument("--reward", choices=REWARDS, default="step", help="violation penalty per step or per 25-frame window")
-    parser.add_argument("--backup", choices=BACKUPS, default="dataset", help="the TD target's next action (see CalQLLoss)")
+    parser.add_argument("--backup", choices=BACKUPS, default="policy", help="the TD target's next action (see CalQLLoss)")
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--out", help="critic directory to keep (default: a temporary one)")
     parser.add_argument("--no-progress", action="store_true")

@@ -65,7 +65,7 @@ class TrainConfig:
     gamma: float | None = None  # None: the annotation's
     reward: str = "step"  # the violation penalty per step or per window (critics.data.REWARDS)
     chunk: int = 1  # actions per scored decision: the chunk length of the policy the critic will judge
-    backup: str = "dataset"  # the TD target's next action (critics.loss.BACKUPS; see CalQLLoss)
+    backup: str = "policy"  # the TD target's next action (critics.loss.BACKUPS; see CalQLLoss)
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
@@ -198,7 +198,7 @@ def train_critic(
     gamma: float | None = None,
     reward: str = "step",
     chunk: int = 1,
-    backup: str = "dataset",
+    backup: str = "policy",
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -209,7 +209,7 @@ def train_critic(
     uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
     cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
     annotation's), reward ("step" or "segment") and chunk (actions per scored decision, the chunk length of
-    the policy the critic will judge): see `critics.data.load_transitions`; backup ("dataset" or "policy",
+    the policy the critic will judge): see `critics.data.load_transitions`; backup ("policy" or "dataset",
     the TD target's next action): see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the

@@ -213,8 +213,8 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reward", default="step",
                    help="step: penalise each violating step; segment: every step of a violating 25-frame window")
     p.add_argument("--chunk", type=int, default=1, help="actions per scored decision (the chunk length of the policy to judge)")
-    p.add_argument("--backup", default="dataset",
-                   help="the TD target's next action: dataset (the demo's next action, in-sample) or policy (a' ~ pi, Cal-QL's)")
+    p.add_argument("--backup", default="policy",
+                   help="the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action, in-sample)")
     p.add_argument("--resume", action="store_true")
 
 

@@ -3,6 +3,7 @@ loading, run-time scoring, held-out evaluation, and the refusals users hit."""
 from __future__ import annotations
 
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -173,6 +174,22 @@ def test_refusals(trained, annotated, tmp_path):
         train_critic([annotated], run, steps=4, resume=True, **TINY)
     with pytest.raises(UserInputError, match="steps must be a positive integer"):
         train_critic([annotated], str(tmp_path / "zero"), steps=0, **TINY)
+
+
+def test_the_in_sample_backup_reaches_the_loss_and_binds_a_resume(annotated, tmp_path):
+    """backup="dataset" trains other critics than the default from the same seed, is recorded in the
+    artifact's config, and a resume must keep it; an unknown backup is refused in one line."""
+    runs = {b: str(tmp_path / b) for b in ("policy", "dataset")}
+    for backup, run in runs.items():
+        train_critic([annotated], run, steps=3, backup=backup, **TINY)
+    weights = {b: torch.load(os.path.join(run, "critic.pt"), weights_only=True) for b, run in runs.items()}
+    assert not all(torch.equal(weights["policy"][k], weights["dataset"][k]) for k in weights["policy"])
+    with open(os.path.join(runs["dataset"], "critic.json")) as f:
+        assert json.load(f)["training"]["backup"] == "dataset"
+    with pytest.raises(UserInputError, match="cannot resume with different backup"):
+        train_critic([annotated], runs["dataset"], steps=4, resume=True, **TINY)
+    with pytest.raises(UserInputError, match="backup"):
+        train_critic([annotated], str(tmp_path / "bad"), steps=1, backup="expectile", **TINY)
 
 
 def test_a_chunk_critic_scores_flattened_chunks_normalised_step_by_step(annotated, tmp_path):
