@@ -6,9 +6,10 @@ in turn and the ITC monitor judges every transition (s_t, a_t, s_t+1). The state
 is the recorded `final_state`; a file without one (LIBERO's own) gets it by stepping the env once from
 the last stored state, which is only approximate: the controller's internal state (the gripper's
 smoothed command, the OSC target) is not part of a MuJoCo state, and that last transition is where
-LIBERO ends a successful episode, so where placements are judged. No policy or expert runs, so the same labelling works for our scripted demos and for imported LIBERO
-demos. The annotated copy (layout in `annotations.format`) adds per-step and per-window labels, the
-elegance reward and its discounted return-to-go; human labels from a CSV replace automatic windows.
+LIBERO ends a successful episode, so where placements are judged. No policy or expert runs, so the
+same labelling works for our scripted demos and for imported LIBERO demos. The annotated copy (layout
+in `annotations.format`) adds per-step and per-window labels, the elegance reward and its discounted
+return-to-go; human labels from a CSV replace automatic windows.
 """
 from __future__ import annotations
 

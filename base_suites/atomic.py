@@ -48,8 +48,14 @@ def changed_fields(old: Any, new: dict, ignore: tuple[str, ...] = (), added: dic
     `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
     by key; a resume refuses any of them (every resumable command compares settings this one way).
     `added`: settings introduced after some records were written, with the value that reproduces what
-    those records' runs did; a record without the key counts as having that value."""
-    old = {**(added or {}), **(old if isinstance(old, dict) else {})}
+    those records' runs did; a record without the key counts as having that value. A dict value names
+    settings added inside a nested record (e.g. {"jiti": {"chunk": 1}}), filled in the same way."""
+    old = dict(old) if isinstance(old, dict) else {}
+    for key, value in (added or {}).items():
+        if isinstance(value, dict) and isinstance(old.get(key), dict):
+            old[key] = {**value, **old[key]}
+        else:
+            old.setdefault(key, value)
     return [(k, old.get(k), new.get(k)) for k in sorted(set(old) | set(new)) if k not in ignore and old.get(k) != new.get(k)]
 
 

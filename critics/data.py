@@ -24,10 +24,11 @@ action is the chunk a_t .. a_{t+chunk-1} of its demo, each step normalised as ab
 (chunk * A,), repeating the demo's last action past its end, as the BC policy is trained. TorchRL's
 `MultiStep` turns the per-step transitions into chunk transitions: next/reward becomes the discounted
 sum of the chunk's penalties, next/observation the state after the chunk (or after the demo's last step),
-next/action the chunk that starts there, and `steps_to_next_obs` (1,) int64 how many steps that is, so the loss discounts the bootstrap by
-gamma ** steps_to_next_obs (Q-chunking's unbiased chunk backup). next/done, terminated and truncated are
-those of the chunk's last step (`MultiStep` keeps step t's). `mc_return` stays the per-step return-to-go
-from t, which is exactly the value of the chunk executed from t in the dataset.
+next/action the chunk that starts there, and `steps_to_next_obs` (1,) int64 how many steps that is, so
+the loss discounts the bootstrap by gamma ** steps_to_next_obs (Q-chunking's unbiased chunk backup).
+next/done, terminated and truncated are those of the chunk's last step (`MultiStep` keeps step t's).
+`mc_return` stays the per-step return-to-go from t, which is exactly the value of the chunk executed
+from t in the dataset.
 
 Episode ends: the returns-to-go are computed with `torchrl.objectives.value.functional.reward2go`, the
 demo's last step being its end, so the return of the last step is its own reward. A demo that reaches

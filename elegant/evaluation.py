@@ -131,11 +131,10 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
     if path.exists():
         if not resume:
             raise UserInputError(f"{out} already holds a run (config.json); resume it (--resume) or choose another directory")
-        stored = read_json_file(path, "run config")
-        if isinstance(stored, dict) and isinstance(stored.get("jiti"), dict):
-            # runs from before chunking (one action per decision) and before mode "random" (so its rate had no effect)
-            stored["jiti"] = {"chunk": 1, "random_rate": config["jiti"]["random_rate"], **stored["jiti"]}
-        changed = changed_fields(stored, config, ignore=("episodes",), added={"init_states": None})
+        # runs from before chunking (one action per decision), before mode "random" (so its rate had no
+        # effect) and before a subset of init states could be chosen
+        added = {"init_states": None, "jiti": {"chunk": 1, "random_rate": config["jiti"]["random_rate"]}}
+        changed = changed_fields(read_json_file(path, "run config"), config, ignore=("episodes",), added=added)
         if changed:
             key, before, now = changed[0]
             raise UserInputError(

@@ -278,12 +278,11 @@ class JITI:
                 q = float(self._score(state, plan[None])[0])
             if mean is not None:
                 dq = abs(q - mean)
-            if self.mode == "jiti" and dq is not None and dq > tau:
-                candidates = self._candidates(obs, plan)
-                scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
-        if self.mode == "random" and self._rng.random() < self.random_rate:
+        intervene = (self.mode == "jiti" and dq is not None and dq > tau) or \
+            (self.mode == "random" and self._rng.random() < self.random_rate)
+        if intervene:
             candidates = self._candidates(obs, plan)
-            if self.critic is not None:
+            if self.critic is not None:  # the base plan's score is q: only the alternatives are new
                 scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
         chosen, chosen_q, executed, distance = 0, q, plan, None
         if candidates is not None:

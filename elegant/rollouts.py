@@ -36,7 +36,7 @@ class _PolicySource:
         self.agent, self.suite, self.seed, self.init_states, self.policy_name = agent, suite, seed, init_states, policy_name
 
     def for_task(self, env: LiberoEnv, spec: Any) -> None:
-        check_init_states(self.init_states, spec.n_init_states)
+        """Nothing per task: one JITI serves all, and `collect_rollouts` checked the init states up front."""
 
     def start(self, spec: Any, episode: int) -> tuple[int, int]:
         return episode_start(self.seed, self.suite, spec.index, episode, spec.n_init_states, self.init_states)
