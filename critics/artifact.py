@@ -56,9 +56,12 @@ class _Binding:
 
 
 def _blas_operand(tensor: torch.Tensor) -> np.ndarray:
-    """A float32 weight in Fortran order: the operand order this CPU's BLAS multiplies fastest for
-    (16, 256) @ (256, 256) (21 us against 27 us in C order and 45 us through torch)."""
-    return np.asfortranarray(tensor.detach().numpy().astype(np.float32))
+    """A float32 weight in C order. For a decision's (16, 256) @ (256, 256) on one thread, OpenBLAS took
+    27 us with C-ordered weights on both machines measured, while Fortran order ranged from 21 us on one
+    to 51 us on the other (SkylakeX): C is the order without a bad case. The order is fixed rather than
+    timed at start-up because the two orders' kernels may round differently (gemv shapes do), and the
+    same seed must give the same Q values."""
+    return np.ascontiguousarray(tensor.detach().numpy().astype(np.float32))
 
 
 def _side_by_side(stacked: torch.Tensor) -> torch.Tensor:
@@ -130,7 +133,7 @@ class Critic:
     """An elegance critic: Q(s, a) = min over the twin critics, for states of the task it is bound to.
 
     `q` evaluates the saved `TwinQNetwork` in NumPy with its weights rearranged once at construction
-    (per critic, in BLAS's preferred order, the task encoding folded in at `bind`), because JITI calls it
+    (per critic, in C order, the task encoding folded in at `bind`), because JITI calls it
     every step: the same numbers as `network(obs, actions)` on encoded, normalised inputs, in about half
     the time of the equivalent torch ops at this size (1 state x 16 actions, one thread).
     """
