@@ -24,7 +24,7 @@ from annotations import TaskFeatureEncoder
 from base_suites.atomic import atomic_write, atomic_write_json, library_versions, read_artifact_config
 from base_suites.errors import UserInputError
 from critics.networks import TwinQNetwork
-from critics.normalization import Normalization
+from critics.normalization import MAX_ABS_Z, Normalization
 
 CRITIC_FORMAT = "libero-elegant/critic/1"
 WEIGHTS_FILE = "critic.pt"
@@ -42,15 +42,18 @@ def atomic_torch_save(path: str, obj: Any) -> None:
 class _Binding:
     """One task's observation encoding folded into the critics' first layer.
 
-    The normalised encoding of a state x of the task is t + P(x / std), where t (the encoding of a zero
-    state: padding, task one-hot, -mean/std) is fixed and P pads into the first `state_size` columns.
-    So the first layer's state part is bias + t @ W + x @ (W[:state_size] / std): `q` then needs no
-    encoding or normalisation work beyond one small matmul. Both critics' columns sit side by side
-    (critic c in columns c*H:(c+1)*H), so that matmul serves the pair.
+    The encoding of a state x of the task puts x into the first `state_size` columns and fixed values
+    after them (padding, the task one-hot); normalisation shifts, scales and clips each column. So the
+    first layer's state part is clip((x - mean) / std) @ W[:state_size] + (bias + t @ W[state_size:]),
+    with t the normalised fixed columns: `q` needs one small normalise-and-clip and one small matmul.
+    Both critics' columns sit side by side (critic c in columns c*H:(c+1)*H), so that matmul serves the
+    pair.
     """
 
     task: str
     state_size: int
+    state_mean: np.ndarray  # (state_size,)
+    state_inv_std: np.ndarray  # (state_size,)
     state_weight: np.ndarray  # (state_size, C * H)
     state_bias: np.ndarray  # (C * H,)
 
@@ -174,11 +177,13 @@ class Critic:
     def _binding_for(self, metadata: Mapping[str, Any]) -> _Binding:
         key = self.encoder.check_env(metadata, self.path)
         size = sum(s for _, s in self.encoder.layouts[key])
-        zero_state = torch.from_numpy(self.normalization.observations(self.encoder.encode(np.zeros(size, dtype=np.float32), key)))
+        fixed = torch.from_numpy(self.normalization.observations(self.encoder.encode(np.zeros(size, dtype=np.float32), key)))[size:]
         obs_weight = self.network.obs_weight.detach()  # (C, D, H)
-        bias = self.network.first_bias.detach()[:, 0, :] + torch.einsum("d,cdh->ch", zero_state, obs_weight)
-        weight = obs_weight[:, :size, :] * torch.from_numpy(1.0 / self.normalization.obs_std[:size])[None, :, None]
-        return _Binding(key, size, _blas_operand(_side_by_side(weight)), bias.reshape(-1).numpy().astype(np.float32))
+        bias = self.network.first_bias.detach()[:, 0, :] + torch.einsum("d,cdh->ch", fixed, obs_weight[:, size:, :])
+        return _Binding(
+            key, size, self.normalization.obs_mean[:size].copy(), (1.0 / self.normalization.obs_std[:size]).astype(np.float32),
+            _blas_operand(_side_by_side(obs_weight[:, :size, :])), bias.reshape(-1).numpy().astype(np.float32),
+        )
 
     def bind(self, metadata: Mapping[str, Any]) -> "Critic":
         """Score states of the env described by `metadata` (suite, task_index, state_layout) from now on.
@@ -212,8 +217,10 @@ class Critic:
             )
         scaled = (actions - self._center) * self._inv_half
         np.minimum(np.maximum(scaled, -1.0, out=scaled), 1.0, out=scaled)  # np.clip costs 3x as much here
+        z = (state - b.state_mean) * b.state_inv_std
+        np.minimum(np.maximum(z, -MAX_ABS_Z, out=z), MAX_ABS_Z, out=z)  # as `Normalization.observations`
         with self._one_blas_thread:
-            first_layer = state @ b.state_weight
+            first_layer = z @ b.state_weight
             first_layer += b.state_bias
             q = self._layers.q(first_layer, scaled).reshape(actions.shape[:2])
         return q[0] if single else q

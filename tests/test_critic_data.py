@@ -13,6 +13,7 @@ from annotations import CRITERIA, SEGMENT_LENGTH, Demo, DemoWriter
 from base_suites.errors import UserInputError
 from critics import Normalization, load_transitions, make_replay_buffer
 from critics.data import NO_FLOOR
+from critics.normalization import MAX_ABS_Z, MIN_STD
 
 ROBOT = [["robot0_eef_pos", 3], ["robot0_eef_quat", 4], ["robot0_gripper_qpos", 2], ["robot0_joint_pos", 7]]
 
@@ -200,13 +201,30 @@ def test_normalization_round_trips_and_guards_constant_dimensions():
     obs = np.stack([np.arange(6.0), np.full(6, 3.0), np.ones(6)], axis=1)  # last column: a one-hot (not normalised)
     actions = np.stack([np.linspace(-0.5, 0.5, 6), np.zeros(6)], axis=1)
     norm = Normalization.fit(obs, actions, state_dim=2)
-    assert norm.obs_std[1] == 1.0  # constant: only shifted
+    assert norm.obs_std[1] == pytest.approx(MIN_STD)  # constant: only shifted in training
     assert np.allclose(norm.observations(obs)[:, 1], 0) and np.array_equal(norm.observations(obs)[:, 2], obs[:, 2])
     mapped = norm.actions(actions)
     assert np.allclose(mapped[:, 0], np.linspace(-1, 1, 6)) and np.allclose(mapped[:, 1], 0)
     assert np.allclose(norm.actions([[2.0, 0.5]]), [[1.0, 1.0]])  # outside the data's bounds: clipped
     again = Normalization.from_dict(norm.to_dict())
     assert all(np.array_equal(getattr(again, k), getattr(norm, k)) for k in ("obs_mean", "obs_std", "action_low", "action_high"))
+
+
+def test_a_dimension_that_rarely_moves_does_not_blow_up_its_outliers():
+    """An object's orientation that changes in one transition of 10,000 (it was knocked over) must not
+    reach the network as an input of ~100; an ordinary dimension keeps its standard deviation."""
+    rng = np.random.default_rng(0)
+    ordinary = rng.normal(0.3, 0.05, size=10_000)
+    rare = np.full(10_000, 0.7)
+    rare[17] = 0.0
+    jitter = np.full(10_000, 0.15)
+    jitter[5000:] += 3e-5  # a box nudged by 0.03 mm
+    obs = np.stack([ordinary, rare, jitter], axis=1)
+    norm = Normalization.fit(obs, np.zeros((10_000, 1)), state_dim=3)
+    z = norm.observations(obs)
+    assert norm.obs_std[0] == pytest.approx(ordinary.std(), rel=1e-5)
+    assert np.abs(z).max() <= MAX_ABS_Z + 1e-4 and abs(z[17, 1]) > 9  # the outlier still stands out
+    assert np.abs(z[:, 2]).max() < 0.05  # jitter stays jitter
 
 
 def test_chunk_transitions_sum_the_chunks_penalties_and_bootstrap_after_the_chunk(annotated):

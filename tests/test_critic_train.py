@@ -74,6 +74,13 @@ def test_loaded_critic_scores_raw_states_and_actions(trained, task):
     with torch.no_grad():
         by_hand = critic.network(torch.from_numpy(obs)[None], torch.from_numpy(norm.actions(actions))[None]).amin(0)[0]
     assert np.allclose(q, by_hand.numpy(), atol=1e-5)
+    # a state far outside the training range is clipped as in training, not extrapolated
+    far = state * 1e4
+    with torch.no_grad():
+        far_by_hand = critic.network(torch.from_numpy(norm.observations(encoder.encode(far, f"libero_object/{task}")))[None],
+                                     torch.from_numpy(norm.actions(actions))[None]).amin(0)[0]
+    assert np.allclose(critic.q(far, actions), far_by_hand.numpy(), atol=1e-5)
+    assert np.allclose(critic.q(far, actions), critic.q(far * 10, actions), atol=1e-6)
     with pytest.raises(UserInputError, match="Critic.q expects state"):
         critic.q(np.append(state, 0.0), actions)
 
