@@ -24,7 +24,7 @@ from annotations import TaskFeatureEncoder
 from base_suites.atomic import atomic_write, atomic_write_json, library_versions, read_artifact_config
 from base_suites.errors import UserInputError
 from critics.networks import TwinQNetwork
-from critics.normalization import MAX_ABS_Z, Normalization
+from critics.normalization import Normalization, clip_normalised_
 
 CRITIC_FORMAT = "libero-elegant/critic/1"
 WEIGHTS_FILE = "critic.pt"
@@ -217,8 +217,7 @@ class Critic:
             )
         scaled = (actions - self._center) * self._inv_half
         np.minimum(np.maximum(scaled, -1.0, out=scaled), 1.0, out=scaled)  # np.clip costs 3x as much here
-        z = (state - b.state_mean) * b.state_inv_std
-        np.minimum(np.maximum(z, -MAX_ABS_Z, out=z), MAX_ABS_Z, out=z)  # as `Normalization.observations`
+        z = clip_normalised_((state - b.state_mean) * b.state_inv_std)  # as `Normalization.observations`
         with self._one_blas_thread:
             first_layer = z @ b.state_weight
             first_layer += b.state_bias
