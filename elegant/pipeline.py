@@ -137,7 +137,8 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
         if not os.path.exists(annotated[suite]):
             say(f"annotate {suite}: ITC labels by replaying the demos in the simulator")
             annotate_file(demos[suite], annotated[suite], resume=True, progress=progress)
-    if not os.path.exists(os.path.join(critic_dir, "critic.json")):
+    needs_critic = any(m != "base" for m in cfg.modes)  # base alone (the policy benchmark) only logs its scores
+    if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
         say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
         train_critic(list(annotated.values()), critic_dir, steps=cfg.critic_steps, seed=cfg.seed, gamma=cfg.critic_gamma,
                      cql_weight=cfg.critic_cql_weight, reward=cfg.critic_reward, chunk=cfg.chunk, resume=True, progress=progress)
@@ -150,7 +151,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
         for suite in cfg.suites:
             say(f"evaluate {mode} on {suite}: {cfg.episodes} episodes per task")
             summaries[mode][suite] = evaluate(
-                suite, tasks, policy_dir, critic_dir, mode=mode, episodes=cfg.episodes,
+                suite, tasks, policy_dir, critic_dir if needs_critic else None, mode=mode, episodes=cfg.episodes,
                 seed=cfg.seed, out=runs[mode][suite], resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode),
                 max_steps=cfg.max_steps,
             )

@@ -1,6 +1,7 @@
 """The chain behind `elegant quickstart` and the effect benchmark, at tiny sizes on the real simulator."""
 import json
 import os
+from dataclasses import replace
 
 import pytest
 
@@ -44,3 +45,19 @@ def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
         run_chain(out, ChainConfig(demos=3, critic_steps=20, policy_epochs=1, episodes=1, max_steps=15), progress=False)
     with pytest.raises(UserInputError, match="chain modes"):
         run_chain(out, ChainConfig(modes=("sometimes",)), progress=False)
+
+
+def test_a_base_only_chain_trains_no_critic(chain, tmp_path):
+    """The policy benchmark's chain: the data and policy steps are skipped when their outputs exist, and
+    with the base mode alone no critic is trained and the evaluation runs without one."""
+    import shutil
+
+    source, _ = chain
+    for name in ("demos_libero_object.hdf5", "annotated_libero_object.hdf5"):
+        shutil.copy(os.path.join(source, name), tmp_path / name)
+    shutil.copytree(os.path.join(source, "policy"), tmp_path / "policy")
+    result = run_chain(str(tmp_path), replace(TINY, modes=("base",)), progress=False)
+    assert not os.path.exists(tmp_path / "critic")
+    summary = json.load(open(os.path.join(result["runs"]["base"]["libero_object"], "summary.json")))
+    assert summary["config"]["critic"] is None and summary["episodes"] == 1
+    assert set(result) >= {"base", "per_suite"} and "jiti" not in result

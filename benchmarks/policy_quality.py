@@ -1,0 +1,77 @@
+"""The BC base policy's quality: trained on mixed-quality expert demos, success and ESR per suite and task.
+
+Targets (issue 6): success >= 70% per suite over `--episodes` episodes per task, with ESR clearly below
+success (at least 10 points: that gap is what JITI is meant to close). The chain is `elegant.pipeline`'s
+with the base mode only, so no critic is trained; its directory resumes (rerun the same command after an
+interruption). Every suite's demos train one policy, with the task as a one-hot input.
+
+    python benchmarks/policy_quality.py --out runs/policy [--suites libero_object,libero_goal] [--demos 50]
+        [--episodes 50] [--policy-epochs 50] [--tasks 0,1] [--seed 0]
+
+Prints the table per task and suite, then one JSON object on its last line.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+from elegant.pipeline import ChainConfig, run_chain
+
+TARGETS = {"suite_success": 0.70, "esr_gap": 0.10}
+
+
+def per_task(run_dir: str) -> dict[str, dict[str, float]]:
+    """Success and ESR of each task of one evaluation run, from its summary."""
+    with open(os.path.join(run_dir, "summary.json")) as f:
+        summary = json.load(f)
+    return {task: {"success_rate": row["success_rate"], "esr": row["esr"], "episodes": row["episodes"]}
+            for task, row in summary["per_task"].items()}
+
+
+def verdicts(per_suite: dict[str, dict[str, float]]) -> dict[str, dict]:
+    """Each target per suite."""
+    return {
+        suite: {
+            "success": row["success_rate"],
+            "esr": row["esr"],
+            "esr_gap": row["success_rate"] - row["esr"],
+            "meets": {"suite_success": row["success_rate"] >= TARGETS["suite_success"],
+                      "esr_gap": row["success_rate"] - row["esr"] >= TARGETS["esr_gap"]},
+        }
+        for suite, row in per_suite.items()
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", required=True, help="chain directory (resumable)")
+    parser.add_argument("--suites", default="libero_object,libero_goal")
+    parser.add_argument("--tasks", help="task indices for every suite (default: all)")
+    parser.add_argument("--demos", type=int, default=50, help="mixed-quality demos per task")
+    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task")
+    parser.add_argument("--policy-epochs", type=int, default=50)
+    parser.add_argument("--policy-modes", type=int, help="components of the GMM head (default: train-policy's)")
+    parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy")
+    parser.add_argument("--max-steps", type=int)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    config = ChainConfig(
+        suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
+        demos=args.demos, policy_epochs=args.policy_epochs, episodes=args.episodes, modes=("base",), seed=args.seed,
+        max_steps=args.max_steps, chunk=args.chunk, policy_modes=args.policy_modes,
+    )
+    result = run_chain(args.out, config)
+    suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}
+    tasks = {suite: per_task(result["runs"]["base"][suite]) for suite in suites}
+    print(f"{'task':22s} {'success':>8s} {'ESR':>6s}")
+    for suite, rows in tasks.items():
+        for task, row in rows.items():
+            print(f"{task:22s} {row['success_rate']:8.1%} {row['esr']:6.1%}")
+        print(f"{suite + ' (suite)':22s} {suites[suite]['success_rate']:8.1%} {suites[suite]['esr']:6.1%}")
+    print(json.dumps({"benchmark": "policy_quality", "config": vars(args), "per_suite": suites, "per_task": tasks,
+                      "verdicts": verdicts(suites), "targets": TARGETS}))
+
+
+if __name__ == "__main__":
+    main()
