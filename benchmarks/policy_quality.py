@@ -6,7 +6,7 @@ with the base mode only, so no critic is trained; its directory resumes (rerun t
 interruption). Every suite's demos train one policy, with the task as a one-hot input.
 
     python benchmarks/policy_quality.py --out runs/policy [--suites libero_object,libero_goal] [--demos 50]
-        [--episodes 50] [--policy-epochs 50] [--tasks 0,1] [--seed 0]
+        [--episodes 50] [--policy-epochs 50] [--tasks 0,1] [--seed 0] [--successful-only]
 
 Prints the table per task and suite, then one JSON object on its last line.
 """
@@ -53,6 +53,7 @@ def main() -> None:
     parser.add_argument("--policy-epochs", type=int, default=50)
     parser.add_argument("--policy-modes", type=int, help="components of the GMM head (default: train-policy's)")
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy")
+    parser.add_argument("--successful-only", action="store_true", help="clone only the demos that succeeded")
     parser.add_argument("--max-steps", type=int)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
@@ -60,6 +61,7 @@ def main() -> None:
         suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
         demos=args.demos, policy_epochs=args.policy_epochs, episodes=args.episodes, modes=("base",), seed=args.seed,
         max_steps=args.max_steps, chunk=args.chunk, policy_modes=args.policy_modes,
+        policy_successful_only=args.successful_only,
     )
     result = run_chain(args.out, config)
     suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}

@@ -185,6 +185,7 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--history", type=int, default=10, help="states stacked as input")
     p.add_argument("--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)")
     p.add_argument("--modes", type=int, help="components of the GMM action head (default 16)")
+    p.add_argument("--successful-only", action="store_true", help="train on the demos whose episode succeeded (as LIBERO's datasets hold)")
     p.add_argument("--resume", action="store_true")
 
 
@@ -194,7 +195,7 @@ def _train_policy(args: argparse.Namespace) -> dict:
 
     summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
                            batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk,
-                           **({} if args.modes is None else {"modes": args.modes}))
+                           successful_only=args.successful_only, **({} if args.modes is None else {"modes": args.modes}))
     summary.pop("loss_history", None)
     return summary
 

@@ -36,6 +36,7 @@ class ChainConfig:
     suites' horizons. `chunk`: actions per decision of the BC policy (executed open-loop) and of the
     critic that judges them; JITI then chooses among whole chunks (see `elegant.jiti`). `window`: JITI's
     window in decisions (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
+    `policy_successful_only`: the policy clones only the demos that succeeded (the critic still sees all).
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -57,6 +58,7 @@ class ChainConfig:
     chunk: int = 1
     window: int | None = None
     policy_modes: int | None = None
+    policy_successful_only: bool = False
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -90,7 +92,7 @@ def _check_settings(out: str, cfg: ChainConfig) -> None:
     path = os.path.join(out, "chain.json")
     settings = json.loads(json.dumps(asdict(cfg)))  # tuples as lists, as stored
     # chains written before chunking and before the mixture size was a setting (policies then had 5 components)
-    added = {"chunk": 1, "window": None, "policy_modes": 5}
+    added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False}
     changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
     if changed:
         raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
@@ -145,7 +147,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
         train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk,
-                     resume=True, progress=progress, **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
+                     resume=True, progress=progress, successful_only=cfg.policy_successful_only, **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:

@@ -11,6 +11,7 @@ import torch
 from annotations import Demo, DemoWriter
 from base_suites.errors import UserInputError
 from elegant.policies import BCPolicy, Policy, as_policy, load_policy, train_policy
+from elegant.policies.bc_data import load_demos
 
 torch.set_num_threads(1)
 
@@ -30,7 +31,8 @@ def expert(state: np.ndarray, key: str) -> np.ndarray:
     return action
 
 
-def write_demos(path, *, demos_per_task: int = 5, steps: int = 30, seed: int = 0, layouts=LAYOUTS) -> str:
+def write_demos(path, *, demos_per_task: int = 5, steps: int = 30, seed: int = 0, layouts=LAYOUTS, failures: int = 0) -> str:
+    """`failures`: the last this many demos of each task are marked as failed episodes."""
     rng = np.random.default_rng(seed)
     writer = DemoWriter(str(path), {"env_args": {}, "problem_info": {}})
     for key, layout in layouts.items():
@@ -45,7 +47,7 @@ def write_demos(path, *, demos_per_task: int = 5, steps: int = 30, seed: int = 0
                 state = state.copy()
                 state[:3] += 0.05 * actions[-1][:3] + rng.normal(0, 0.005, 3)
             obs, actions = np.array(obs), np.array(actions)
-            attrs = {"suite": suite, "task_index": int(index), "task_name": key, "success": True}
+            attrs = {"suite": suite, "task_index": int(index), "task_name": key, "success": d < demos_per_task - failures}
             demo = Demo(f"demo_{d}", actions, np.zeros((steps, 3)), obs, np.roll(obs, -1, 0), np.zeros(steps), np.eye(steps)[-1], attrs)
             writer.append(demo, state_layout=layout)
     return writer.finish()
@@ -262,3 +264,15 @@ def test_a_policy_saved_before_chunking_loads_as_one_action_per_decision(policy_
     assert policy.chunk == 1
     policy.reset(metadata("libero_object/1"))
     assert policy.plan({"state": np.zeros(5)}).shape == (1, 7)
+
+
+def test_successful_only_clones_the_successes_and_a_resume_must_agree(tmp_path):
+    path = write_demos(tmp_path / "mixed.hdf5", demos_per_task=4, failures=1, steps=10)
+    assert len(load_demos([path]).episodes) == 8
+    assert len(load_demos([path], successful_only=True).episodes) == 6
+    out = str(tmp_path / "policy")
+    summary = train_policy([path], out, epochs=1, successful_only=True, **SMALL)
+    assert summary["num_demos"] == 6
+    assert json.load(open(os.path.join(out, "config.json")))["training"]["successful_only"] is True
+    with pytest.raises(UserInputError, match="cannot resume"):
+        train_policy([path], out, epochs=1, resume=True, **SMALL)

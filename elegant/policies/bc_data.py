@@ -35,8 +35,12 @@ class DemoSet:
         return sum(len(e.actions) for e in self.episodes)
 
 
-def load_demos(paths: Sequence[str | os.PathLike]) -> DemoSet:
-    """Read every demo of every file, refusing missing layouts, layout conflicts and shape mismatches."""
+def load_demos(paths: Sequence[str | os.PathLike], successful_only: bool = False) -> DemoSet:
+    """Read every demo of every file, refusing missing layouts, layout conflicts and shape mismatches.
+
+    `successful_only` skips demos whose `success` attribute is false (demos without one, such as
+    LIBERO's own, count as successful): LIBERO's datasets hold successful demos only, and a mixed
+    expert's failed episodes (a `misplace` let go beside the goal) would teach the policy to fail."""
     if isinstance(paths, (str, os.PathLike)) or not paths:
         raise UserInputError("train_policy: expected a non-empty list of demo files")
     data = DemoSet()
@@ -57,7 +61,7 @@ def load_demos(paths: Sequence[str | os.PathLike]) -> DemoSet:
                     raise UserInputError(f"{where}/obs/state has shape {demo.obs.shape}; expected (T, {width}) from the layout of {key}")
                 if demo.actions.shape != (len(demo.obs), ACTION_DIM):
                     raise UserInputError(f"{where}/actions has shape {demo.actions.shape}; expected ({len(demo.obs)}, {ACTION_DIM})")
-                if len(demo.obs) == 0:
+                if len(demo.obs) == 0 or (successful_only and not bool(demo.attrs.get("success", True))):
                     continue
                 data.episodes.append(Episode(key, demo.obs.astype(np.float64), demo.actions.astype(np.float32)))
                 samples += len(demo.obs)

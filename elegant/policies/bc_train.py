@@ -113,7 +113,8 @@ def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
         state = torch.load(path, weights_only=True)
     except Exception as exc:  # a truncated or foreign file surfaces as many exception types
         raise UserInputError(f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume") from None
-    changed = changed_fields(state.get("fingerprint") if isinstance(state, dict) else None, fingerprint)
+    # checkpoints from before the success filter trained on every demo
+    changed = changed_fields(state.get("fingerprint") if isinstance(state, dict) else None, fingerprint, added={"successful_only": False})
     if changed:
         key, was, now = changed[0]
         raise UserInputError(f"{path}: cannot resume, field {key!r} was {was!r} and is now {now!r}")
@@ -191,6 +192,7 @@ def train_policy(
     features: BCFeatures | None = None,
     init_from: str | None = None,
     snapshot_epochs: Collection[int] = (),
+    successful_only: bool = False,
 ) -> dict[str, Any]:
     """Train a BC-GMM policy on the demos in `paths` and write it to the directory `out`.
 
@@ -207,7 +209,8 @@ def train_policy(
     starts from a policy directory's weights and features instead of a fresh network (not with
     `features`); `snapshot_epochs` also publishes the policy as of these epochs (0: before training) in
     `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
-    resumed checkpoint must match.
+    resumed checkpoint must match. `successful_only`: train on the successful demos only (see
+    `load_demos`); the data a checkpoint records then counts only those.
     """
     cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip, chunk)
     cfg.validate()
@@ -218,13 +221,14 @@ def train_policy(
         raise UserInputError(f"{out}: exists and is not a directory")
     os.makedirs(out, exist_ok=True)
     started = time.perf_counter()
-    data = select_tasks(load_demos(paths), tasks)
+    data = select_tasks(load_demos(paths, successful_only), tasks)
     init = read_artifact(init_from) if init_from is not None else None
     origin = {  # what this run starts from beyond the files and the config: recorded, and checked on resume
         "tasks": None if tasks is None else list(data.layouts),
         "features": None if features is None else _digest(features.to_dict()),
         # The start network by content, not by path: a moved or copied run directory still resumes.
         "init_from": None if init is None else {"model_sha256": init[2]["model_sha256"]},
+        "successful_only": bool(successful_only),
     }
     features = _input_features(data, cfg, features, init, init_from)
     windows = _Windows(data, features, cfg.chunk)
