@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from elegant.pipeline import ChainConfig, run_chain
+from elegant.pipeline import add_chain_arguments, chain_config, run_chain
 
 TARGETS = {"base_success": 0.70, "esr_gain": 0.15, "max_success_drop": 0.02, "max_intervention_ratio": 0.40}
 
@@ -44,31 +44,20 @@ def verdicts(result: dict) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True, help="chain directory (resumable)")
-    parser.add_argument("--suites", default="libero_object,libero_goal")
-    parser.add_argument("--tasks", help="task indices for every suite (default: all)")
-    parser.add_argument("--demos", type=int, default=50, help="mixed-quality demos per task")
-    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task and mode")
+    add_chain_arguments(parser)
     parser.add_argument("--critic-steps", type=int, default=20000)
     parser.add_argument("--critic-gamma", type=float, default=0.9)
     parser.add_argument("--critic-cql-weight", type=float, default=0.2)
     parser.add_argument("--critic-reward", default="segment", help="step or segment (see critics.load_transitions)")
-    parser.add_argument("--policy-epochs", type=int, default=50)
     parser.add_argument("--trust-radius", type=float, default=0.3)
     parser.add_argument("--threshold", type=float, default=2.0)
     parser.add_argument("--threshold-mode", choices=("absolute", "std"), default="std")
-    parser.add_argument("--max-steps", type=int)
-    parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy and the critic")
     parser.add_argument("--window", type=int, help="JITI's window in decisions (default: JITI's)")
-    parser.add_argument("--policy-modes", type=int, help="components of the BC policy's GMM head (default: train-policy's)")
-    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    config = ChainConfig(
-        suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
-        demos=args.demos, critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
-        critic_cql_weight=args.critic_cql_weight, critic_reward=args.critic_reward, policy_epochs=args.policy_epochs,
-        episodes=args.episodes, modes=("base", "always", "jiti"), seed=args.seed, trust_radius=args.trust_radius,
-        threshold=args.threshold, threshold_mode=args.threshold_mode, max_steps=args.max_steps, chunk=args.chunk, window=args.window, policy_modes=args.policy_modes,
+    config = chain_config(
+        args, modes=("base", "always", "jiti"), critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
+        critic_cql_weight=args.critic_cql_weight, critic_reward=args.critic_reward, trust_radius=args.trust_radius,
+        threshold=args.threshold, threshold_mode=args.threshold_mode, window=args.window,
     )
     result = run_chain(args.out, config)
     table = verdicts(result)

@@ -16,7 +16,7 @@ import argparse
 import json
 import os
 
-from elegant.pipeline import ChainConfig, run_chain
+from elegant.pipeline import add_chain_arguments, chain_config, run_chain
 
 TARGETS = {"suite_success": 0.70, "esr_gap": 0.10}
 
@@ -45,24 +45,9 @@ def verdicts(per_suite: dict[str, dict[str, float]]) -> dict[str, dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", required=True, help="chain directory (resumable)")
-    parser.add_argument("--suites", default="libero_object,libero_goal")
-    parser.add_argument("--tasks", help="task indices for every suite (default: all)")
-    parser.add_argument("--demos", type=int, default=50, help="mixed-quality demos per task")
-    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task")
-    parser.add_argument("--policy-epochs", type=int, default=50)
-    parser.add_argument("--policy-modes", type=int, help="components of the GMM head (default: train-policy's)")
-    parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy")
-    parser.add_argument("--successful-only", action="store_true", help="clone only the demos that succeeded")
-    parser.add_argument("--max-steps", type=int)
-    parser.add_argument("--seed", type=int, default=0)
+    add_chain_arguments(parser)
     args = parser.parse_args()
-    config = ChainConfig(
-        suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
-        demos=args.demos, policy_epochs=args.policy_epochs, episodes=args.episodes, modes=("base",), seed=args.seed,
-        max_steps=args.max_steps, chunk=args.chunk, policy_modes=args.policy_modes,
-        policy_successful_only=args.successful_only,
-    )
+    config = chain_config(args, modes=("base",))
     result = run_chain(args.out, config)
     suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}
     tasks = {suite: per_task(result["runs"]["base"][suite]) for suite in suites}

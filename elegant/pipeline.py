@@ -8,6 +8,7 @@ directory refuses to continue under other settings.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import os
 from dataclasses import asdict, dataclass, replace
@@ -81,6 +82,31 @@ class ChainConfig:
             return None
         settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window}
         return {k: v for k, v in settings.items() if v is not None}
+
+
+def add_chain_arguments(parser: argparse.ArgumentParser) -> None:
+    """The command-line options every benchmark built on the chain shares (data, policy, evaluation)."""
+    parser.add_argument("--out", required=True, help="chain directory (resumable)")
+    parser.add_argument("--suites", default="libero_object,libero_goal")
+    parser.add_argument("--tasks", help="task indices for every suite (default: all)")
+    parser.add_argument("--demos", type=int, default=50, help="mixed-quality demos per task")
+    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task and mode")
+    parser.add_argument("--policy-epochs", type=int, default=50)
+    parser.add_argument("--policy-modes", type=int, help="components of the BC policy's GMM head (default: train-policy's)")
+    parser.add_argument("--successful-only", action="store_true", help="the policy clones only the demos that succeeded")
+    parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy (and of the critic)")
+    parser.add_argument("--max-steps", type=int, help="episode horizon (default: the suites')")
+    parser.add_argument("--seed", type=int, default=0)
+
+
+def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
+    """A `ChainConfig` from the options of `add_chain_arguments`, with `fields` (modes, critic and JITI settings) added."""
+    return ChainConfig(
+        suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
+        demos=args.demos, policy_epochs=args.policy_epochs, policy_modes=args.policy_modes,
+        policy_successful_only=args.successful_only, episodes=args.episodes, chunk=args.chunk, max_steps=args.max_steps,
+        seed=args.seed, **fields,
+    )
 
 
 # Sizes chosen so the chain finishes in about 10 minutes on a 2-core CPU. 50 demos, not 30: BC cloned
