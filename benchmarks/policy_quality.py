@@ -14,19 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 
 from elegant.pipeline import add_chain_arguments, chain_config, run_chain
 
 TARGETS = {"suite_success": 0.70, "esr_gap": 0.10}
-
-
-def per_task(run_dir: str) -> dict[str, dict[str, float]]:
-    """Success and ESR of each task of one evaluation run, from its summary."""
-    with open(os.path.join(run_dir, "summary.json")) as f:
-        summary = json.load(f)
-    return {task: {"success_rate": row["success_rate"], "esr": row["esr"], "episodes": row["episodes"]}
-            for task, row in summary["per_task"].items()}
 
 
 def verdicts(per_suite: dict[str, dict[str, float]]) -> dict[str, dict]:
@@ -50,7 +41,8 @@ def main() -> None:
     config = chain_config(args, modes=("base",))
     result = run_chain(args.out, config)
     suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}
-    tasks = {suite: per_task(result["runs"]["base"][suite]) for suite in suites}
+    tasks = {suite: {task: {k: row[k] for k in ("success_rate", "esr", "episodes")} for task, row in modes["base"].items()}
+             for suite, modes in result["per_task"].items()}
     print(f"{'task':22s} {'success':>8s} {'ESR':>6s}")
     for suite, rows in tasks.items():
         for task, row in rows.items():

@@ -135,7 +135,8 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     """Run (or continue) the chain in directory `out`.
 
     Returns {mode: pooled success_rate, esr, interventions_per_episode}, per_suite {suite: {mode: the
-    same}}, report (the comparison markdown), runs ({mode: {suite: run directory}}).
+    same}}, per_task {suite: {mode: the run summary's per-task rows}}, report (the comparison markdown),
+    runs ({mode: {suite: run directory}}).
     """
     from annotations import annotate_file
     from annotations.collect import collect_demos
@@ -187,6 +188,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)
     result: dict[str, Any] = {m: _pooled(list(summaries[m].values())) for m in cfg.modes}
     result["per_suite"] = {s: {m: _pooled([summaries[m][s]]) for m in cfg.modes} for s in cfg.suites}
+    result["per_task"] = {s: {m: summaries[m][s]["per_task"] for m in cfg.modes} for s in cfg.suites}
     result["report"] = os.path.join(report_dir, "comparison.md")
     result["runs"] = runs
     return result
