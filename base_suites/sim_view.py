@@ -51,6 +51,17 @@ class Region:
     rotation: np.ndarray
     half_size: np.ndarray | None
 
+    def footprint(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The region's two horizontal axes (world xy unit vectors, one per column) and its half sizes
+        along them. Drawer regions come with their local x pointing down and a wine rack's slot with its
+        local y up: reading local x and y as the footprint would put a drawer's depth on the vertical."""
+        vertical = int(np.argmax(np.abs(self.rotation[2])))
+        flat = [i for i in range(3) if i != vertical]
+        axes = self.rotation[:2, flat]
+        axes = axes / np.linalg.norm(axes, axis=0)
+        half = None if self.half_size is None else np.asarray(self.half_size, dtype=float)[flat]
+        return axes, half
+
 
 def _xyzw(wxyz: np.ndarray) -> np.ndarray:
     return np.array([wxyz[1], wxyz[2], wxyz[3], wxyz[0]])

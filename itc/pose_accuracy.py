@@ -90,19 +90,20 @@ class PoseAccuracy(Constraint):
         return [] if ok else [f"{placement.obj} placed on {placement.target} {error}"]
 
     def _centre(self, ctx: StepContext, placement: Placement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Target centre, its rotation, and the xy tolerance along the target's own x and y axes."""
+        """Target centre, its horizontal axes (2x2, one per column), and the xy tolerance along them."""
         p = self.params
         if not placement.target_is_region:
-            return ctx.position(placement.target), np.eye(3), np.full(2, p.place_xy_tolerance)
+            return ctx.position(placement.target), np.eye(2), np.full(2, p.place_xy_tolerance)
         region = ctx.region(placement.target)
+        axes, half = region.footprint()
         tol = np.full(2, p.place_xy_tolerance)
-        if region.half_size is not None and placement.target in self._shared:
-            tol = np.maximum(tol, np.asarray(region.half_size[:2], dtype=float) - p.region_edge_margin)
-        return region.position, region.rotation, tol
+        if half is not None and placement.target in self._shared:
+            tol = np.maximum(tol, half - p.region_edge_margin)
+        return region.position, axes, tol
 
     def _error(self, ctx: StepContext, placement: Placement) -> tuple[bool, str]:
-        centre, rotation, tol = self._centre(ctx, placement)
-        local = (rotation.T @ (ctx.position(placement.obj) - centre))[:2]
+        centre, axes, tol = self._centre(ctx, placement)
+        local = axes.T @ (ctx.position(placement.obj) - centre)[:2]
         ok = float(np.sum((local / tol) ** 2)) <= 1.0
         distance = cm(float(np.linalg.norm(local)))
         return ok, f"{distance} from its centre (offset {cm(local[0])}, {cm(local[1])}; allowed {cm(tol[0])} x {cm(tol[1])})"

@@ -97,6 +97,19 @@ def test_sim_view_reports_poses_contacts_and_gripper(goal_env):
     assert view.region("wooden_cabinet_1_middle_region").half_size is not None
 
 
+def test_a_drawer_region_footprint_is_the_drawer_floor(goal_env):
+    """LIBERO's drawer regions are rotated so that their local x points down: read as local x and y, the
+    footprint that placements are judged against was the drawer's height by its depth."""
+    goal_env.reset(options={"init_state": 0})
+    view = goal_env.sim
+    region = view.region("wooden_cabinet_1_middle_region")
+    axes, half = region.footprint()
+    assert np.allclose(axes.T @ axes, np.eye(2), atol=1e-6)
+    drawer = view.geom_points("wooden_cabinet_1", body=view.joint(view.articulation_joints(region.name)[0])["body"])
+    extent = np.ptp(drawer[:, :2] @ axes, axis=0)  # the drawer's size along each footprint axis
+    assert np.all(0.6 * extent < 2 * half) and np.all(2 * half < extent), (half, extent)
+
+
 def test_gymnasium_check_env_passes():
     from gymnasium.utils.env_checker import check_env
 

@@ -7,6 +7,7 @@ import annotations.collect as collect
 from annotations import DemoFile
 from base_suites import make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
+from base_suites.experts.skills import SkillContext
 from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
 
@@ -58,6 +59,27 @@ def test_an_object_under_the_opened_drawer_is_moved_clear_first():
     assert all(pred[0] != "clear" for pred, _ in plan_skills(env0.task.goal, env0.sim))
     env.close()
     env0.close()
+
+
+def test_a_drawer_is_pushed_shut_with_the_fingertips_past_a_wine_rack():
+    """libero_10/3: the bottom drawer starts open with a wine rack in front of the cabinet. Pushing with
+    the hand horizontal, the forearm ran into the rack and the drawer stayed open; pointing down and
+    pitched towards the cabinet, the fingertips push it shut."""
+    env = make_env("libero_10", 3, seed=0)
+    env.reset(options={"init_state": 0})
+    drawer = "white_cabinet_1_bottom_region"
+    assert not env.sim.predicate(("close", drawer))
+    skill = articulated.close(SkillContext(env.sim, np.random.default_rng(0)), drawer)
+    touched = set()
+    try:
+        for _ in range(300):
+            env.step(next(skill))
+            touched |= {c.other("robot") for c in env.sim.contacts() if c.involves("robot")}
+        raise AssertionError("the push did not finish in 300 steps")
+    except StopIteration as done:
+        assert done.value and env.sim.predicate(("close", drawer))
+    assert "wine_rack_1" not in touched
+    env.close()
 
 
 @pytest.mark.parametrize("suite, task, reset_seed", [("libero_object", 3, None), ("libero_goal", 4, 1874364848)])

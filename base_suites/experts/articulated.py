@@ -152,21 +152,31 @@ def _point_down(ctx: SkillContext) -> Actions:
     yield from ctx.goto(view.eef_position(), nearest_grasp_rotation(0.0, view.eef_rotation(), view.arm_joints()[6]), OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
 
 
+# Drawers are pushed shut with the closed fingertips on the front panel, the hand pointing down and
+# pitched this far (rad) towards the cabinet: the hand and arm stay above and in front of the drawer,
+# clear of whatever stands in front of the cabinet (a wine rack behind the robot's reach), where a
+# horizontal hand needs its whole forearm's length free in front of the handle.
+PUSH_PITCH = 0.5
+PUSH_STANDOFF = 0.04  # m in front of the handle where the fingertips come down
+
+
 def _push_drawer(ctx: SkillContext, target: str) -> Actions:
     view = ctx.view
     _, opening, handle = _slide(view, target)
-    rot = _hand_facing(-opening)
-    start = handle + opening * 0.08
-    yield from ctx.goto(np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.08)]), rot, CLOSE, tol=0.02, rot_tol=0.2, max_steps=100)
+    push = -opening
+    yaw = float(np.arctan2(push[1], push[0]))  # fingers side by side across the push
+    down = nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6])
+    rot = rot_axis(np.cross(push, [0.0, 0.0, 1.0]), PUSH_PITCH) @ down
+    start = handle + opening * PUSH_STANDOFF
+    yield from ctx.goto(np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.10)]), rot, CLOSE, tol=0.02, rot_tol=0.2, max_steps=100)
     yield from ctx.goto(start, rot, CLOSE, tol=0.01, max_steps=80)
     is_closed = lambda: view.predicate(("close", target))  # noqa: E731
     for _ in range(3):
-        goal = view.eef_position() - opening * 0.25
+        goal = view.eef_position() + push * 0.25
         yield from ctx.goto(goal, rot, CLOSE, tol=0.02, max_steps=80, speed=0.6, until=is_closed)
         if is_closed():
             break
-    yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
-    yield from _point_down(ctx)
+    yield from ctx.goto(view.eef_position() + opening * 0.05 + np.array([0, 0, 0.08]), down, OPEN, tol=0.02, max_steps=30)
     return view.predicate(("close", target))
 
 

@@ -104,10 +104,13 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
     that several goal objects share gets its first object off-centre, leaving room for the next."""
     region = view.region(region_name)
     centre = region.position[:2]
-    if region.half_size is None:
+    axes, half = region.footprint()
+    if half is None:
         return centre
-    axes, half = region.rotation[:2, :2], np.asarray(region.half_size[:2], dtype=float)
     others = [fill_boxes(view.geom_points(o).reshape(-1, 8, 3)) for o in view.objects if o not in (held, region.parent)]
+    if any(view.joint_type(j) == "slide" for j in view.articulation_joints(region_name)):
+        # A drawer: the cabinet above its back part (the drawer is only pulled out so far) counts too.
+        others.append(fill_boxes(view.geom_points(region.parent).reshape(-1, 8, 3)))
     others = np.concatenate([p[p[:, 2] > region.position[2] + 0.01][:, :2] for p in others] or [np.zeros((0, 2))])
     inside = np.all(np.abs((others - centre) @ axes) <= half, axis=1) if len(others) else np.zeros(0, dtype=bool)
     if not inside.any():
