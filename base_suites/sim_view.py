@@ -203,6 +203,14 @@ class SimView:
             "range": model.jnt_range[jid].copy(),
         }
 
+    def opening_sign(self, entity: str) -> float:
+        """+1 when an articulated fixture or object opens as its joint position grows, -1 when it opens
+        as it shrinks, from LIBERO's own open and close ranges: cabinets open towards negative positions,
+        and so does the microwave's door, whose hinge axis points up."""
+        model = {**self._domain.objects_dict, **self._domain.fixtures_dict}[entity]
+        ranges = model.object_properties["articulation"]
+        return 1.0 if np.mean(ranges["default_open_ranges"]) > np.mean(ranges["default_close_ranges"]) else -1.0
+
     def joint_type(self, name: str) -> str:
         """'free', 'ball', 'slide' or 'hinge'."""
         return ("free", "ball", "slide", "hinge")[int(self._model.jnt_type[self._model.joint(name).id])]
@@ -210,11 +218,16 @@ class SimView:
     def articulation_joints(self, target: str) -> tuple[str, ...]:
         """Joints that open/close/turn a region (a drawer) or an articulated entity (a door, a knob)."""
         if target in self.regions:
-            joints = tuple(getattr(self._domain.object_sites_dict[target], "joints", ()) or ())
+            joints = self.region_joints(target)
             if joints:
                 return joints
             target = self._domain.object_sites_dict[target].parent_name
         return self._articulations.get(target, ())
+
+    def region_joints(self, name: str) -> tuple[str, ...]:
+        """The joints a region site itself answers open/close for (a drawer's); none for a region inside
+        a hinged fixture (the microwave's heating region), for which LIBERO's open is always False."""
+        return tuple(getattr(self._domain.object_sites_dict[name], "joints", ()) or ())
 
     @property
     def articulated(self) -> dict[str, tuple[str, ...]]:

@@ -20,6 +20,12 @@ def container_of(view: SimView, target: str) -> str | None:
     return None
 
 
+def is_open(view: SimView, target: str) -> bool:
+    """Whether what must be open before something goes into region `target` is: a drawer region is
+    asked itself, a region inside a hinged fixture (which LIBERO always calls shut) asks the fixture."""
+    return view.predicate(("open", target if view.region_joints(target) else _fixture(view, target)))
+
+
 def _fixture(view: SimView, target: str) -> str:
     """The articulated fixture a target names: a drawer region's cabinet, or the target itself."""
     return view.region(target).parent if target in view.regions else target
@@ -39,10 +45,10 @@ def _slide(view: SimView, target: str) -> tuple[str, np.ndarray, np.ndarray]:
     """The drawer joint, the world direction it opens in, and its handle point."""
     joint = view.articulation_joints(target)[0]
     info = view.joint(joint)
-    opening = -info["axis"]  # LIBERO drawers count as open below a qpos threshold
+    entity = _fixture(view, target)
+    opening = view.opening_sign(entity) * info["axis"]
     opening[2] = 0.0
     opening /= np.linalg.norm(opening)
-    entity = _fixture(view, target)
     pts = view.geom_points(entity, body=info["body"])
     reach = pts @ opening
     front = pts[reach >= reach.max() - 0.012]
@@ -180,6 +186,9 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
     return view.predicate(("close", target))
 
 
+DOOR_STEP = 0.25  # rad of door swing per waypoint along the free edge's arc
+
+
 def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
     """Hinged doors (the microwave): push the door's free edge along its arc with the closed hand."""
     view = ctx.view
@@ -193,11 +202,11 @@ def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
     edge = pts[np.argmax(np.linalg.norm(radial, axis=1))]
     arm = edge - anchor
     arm -= (arm @ axis) * axis
-    sign = 1.0 if opening else -1.0
+    sign = view.opening_sign(entity) * (1.0 if opening else -1.0)
     rot = grasp_rotation(0.0)
     query = "open" if opening else "close"
-    for step in range(1, 7):
-        angle = sign * 0.25 * step
+    for step in range(1, int(np.ptp(info["range"]) / DOOR_STEP) + 2):  # as far as the hinge turns
+        angle = sign * DOOR_STEP * step
         r = rot_axis(axis, angle)
         point = anchor + r @ arm * (0.85)
         point[2] = edge[2] if abs(axis[2]) > 0.9 else point[2]

@@ -76,7 +76,7 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
         if kind in ("on", "in"):
             obj, target = args
             container = articulated.container_of(view, target)
-            if kind == "in" and container is not None and not view.predicate(("open", target)) and target not in opened_for:
+            if kind == "in" and container is not None and not articulated.is_open(view, target) and target not in opened_for:
                 if articulated.under_opened(view, target, obj):
                     steps.append((1, ("clear", obj, target), lambda c, o=obj, t=target: _clear_drawer_path(c, o, t)))
                 steps.append((1, ("open", target), lambda c, t=target: articulated.open_(c, t)))
