@@ -7,6 +7,7 @@ import annotations.collect as collect
 from annotations import DemoFile
 from base_suites import make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
+from base_suites.experts.geometry import REACH_LIMIT, choose_grasp, shape_of
 from base_suites.experts.skills import SkillContext
 from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
@@ -33,6 +34,7 @@ def _solve(suite, task, init=0, quality="clean", episode=0, reset_seed=None):
     ("libero_goal", 0, "open drawer"),
     ("libero_goal", 7, "turn knob"),
     ("libero_spatial", 0, "pick and place (rim grasp of a bowl)"),
+    ("libero_spatial", 4, "pick from an open drawer, carry over the cabinet"),
 ])
 def test_expert_solves_one_task_per_primitive_family(suite, task, family):
     success, _, verdict = _solve(suite, task)
@@ -71,6 +73,45 @@ def _run_skill(env, skill, max_steps: int = 400) -> tuple[bool, set[str]]:
     except StopIteration as done:
         return bool(done.value), touched
     raise AssertionError(f"the skill did not finish in {max_steps} steps")
+
+
+def test_a_rim_grasp_leaves_the_arm_the_reach_to_set_the_bowl_down():
+    """libero_spatial/4 (reset seed 8, init 2): the clearest rim grasp of the bowl in the drawer is on
+    its far side; carried to the plate, that hand sat 76 cm from the robot base, the elbow locked
+    straight and the set-down stalled. Told where the bowl goes, the grasp keeps the hand within reach."""
+    env = make_env("libero_spatial", 4, seed=0)
+    env.reset(seed=8, options={"init_state": 2})
+    view, bowl = env.sim, "akita_black_bowl_1"
+    plate, base = view.position("plate_1")[:2], view.robot_base_position()[:2]
+    centre = shape_of(view, bowl).centre[:2]
+
+    def reach_at_plate(grasp) -> float:
+        return float(np.linalg.norm(plate + grasp.position[:2] - centre - base))
+
+    assert reach_at_plate(choose_grasp(view, bowl)) > REACH_LIMIT
+    assert reach_at_plate(choose_grasp(view, bowl, destination=plate)) <= REACH_LIMIT
+    env.close()
+    success, _, verdict = _solve("libero_spatial", 4, init=2, reset_seed=8)
+    assert success and verdict["violated"] == [], verdict["events"][:3]
+
+
+def test_the_wrist_stays_off_its_stop_when_the_arm_swings_to_the_grasp():
+    """libero_spatial/1 (reset seed 0, init 5): reaching the bowl swings the arm ~0.4 rad about its base
+    and the last joint turns back as much to hold the hand's yaw. Judged from the start pose alone, the
+    grasp drove that joint into its stop (2.90 rad), OSC dragged the hand instead of turning it and the
+    pick ran out of time."""
+    env = make_env("libero_spatial", 1, seed=0)
+    obs, _ = env.reset(seed=0, options={"init_state": 5})
+    expert = ScriptedExpert(env, quality="clean", seed=0)
+    expert.reset(env.metadata, episode=0)
+    info, wrist = {"success": False}, 0.0
+    for _ in range(env.max_steps):
+        obs, _, terminated, truncated, info = env.step(expert(obs))
+        wrist = max(wrist, abs(float(env.sim.arm_joints()[6])))
+        if terminated or truncated:
+            break
+    env.close()
+    assert info["success"] and wrist < 2.8, wrist
 
 
 def test_a_drawer_is_pushed_shut_with_the_fingertips_past_a_wine_rack():

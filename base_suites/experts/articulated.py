@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, nearest_grasp_rotation, rot_axis, rot_z
-from base_suites.experts.skills import Actions, SkillContext
+from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
+from base_suites.experts.skills import Actions, SkillContext, hand_down
 from base_suites.sim_view import SimView
 
 
@@ -138,7 +138,7 @@ def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
         yield from ctx.goto(goal, rot, CLOSE, tol=0.015, max_steps=80, speed=0.5, until=is_open)
         if is_open():
             break
-    yield from ctx.hold(OPEN, 8, rot)
+    yield from ctx.release(rot)
     yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
     yield from _point_down(ctx)
     return view.predicate(("open", target))
@@ -155,7 +155,7 @@ def _point_down(ctx: SkillContext) -> Actions:
     toward_base = view.robot_base_position()[:2] - view.eef_position()[:2]
     back = np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
     yield from ctx.goto(view.eef_position() + back, view.eef_rotation(), OPEN, tol=0.02, max_steps=30)
-    yield from ctx.goto(view.eef_position(), nearest_grasp_rotation(0.0, view.eef_rotation(), view.arm_joints()[6]), OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
+    yield from ctx.goto(view.eef_position(), hand_down(view, 0.0), OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
 
 
 # Drawers are pushed shut with the closed fingertips on the front panel, the hand pointing down and
@@ -171,7 +171,7 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
     _, opening, handle = _slide(view, target)
     push = -opening
     yaw = float(np.arctan2(push[1], push[0]))  # fingers side by side across the push
-    down = nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6])
+    down = hand_down(view, yaw, at=handle)
     rot = rot_axis(np.cross(push, [0.0, 0.0, 1.0]), PUSH_PITCH) @ down
     start = handle + opening * PUSH_STANDOFF
     yield from ctx.goto(np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.10)]), rot, CLOSE, tol=0.02, rot_tol=0.2, max_steps=100)
@@ -234,7 +234,7 @@ def turn(ctx: SkillContext, target: str, on: bool) -> Actions:
     yaw = 0.0 if extent[1] <= extent[0] else np.pi / 2
     grip = np.array([centre[0], centre[1], top[:, 2].max() - 0.015])
     sign = (1.0 if on else -1.0) * np.sign(info["axis"][2] or 1.0)
-    rot = nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6], then=sign * KNOB_STEP * KNOB_STEPS)
+    rot = hand_down(view, yaw, at=grip, then=sign * KNOB_STEP * KNOB_STEPS)
     yield from ctx.goto(np.array([*grip[:2], grip[2] + 0.10]), rot, OPEN, tol=0.015, max_steps=150)
     yield from ctx.goto(grip, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
     yield from ctx.hold(CLOSE, 10, rot)
@@ -246,6 +246,6 @@ def turn(ctx: SkillContext, target: str, on: bool) -> Actions:
         yield from ctx.goto(pos, rot_z(angle) @ rot, CLOSE, tol=0.01, rot_tol=0.05, max_steps=25, speed=0.5)
         if view.predicate((query, target)) and k >= 5:
             break
-    yield from ctx.hold(OPEN, 8)
+    yield from ctx.release()
     yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), view.eef_rotation(), OPEN, tol=0.02, max_steps=30)
     return view.predicate((query, target))

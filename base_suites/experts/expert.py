@@ -106,7 +106,7 @@ def _clear_drawer_path(ctx: SkillContext, obj: str, drawer: str) -> skills.Actio
 def _pick_place(ctx: SkillContext, obj: str, target: str, shared: bool = False) -> skills.Actions:
     if not skills.can_grasp(ctx.view, obj):
         return (yield from skills.push(ctx, obj, target))
-    ok = yield from skills.pick(ctx, obj)
+    ok = yield from skills.pick(ctx, obj, destination=skills.target_xy(ctx.view, target))
     if not ok:
         return False
     return (yield from skills.place(ctx, obj, target, shared=shared))

@@ -24,6 +24,8 @@ FINGER_HALF_WIDTH = 0.009  # finger pad extent across the closing direction
 FINGER_THICKNESS = 0.022  # room a finger needs beside the pinched part
 OPEN_HALF_SPAN = 0.04  # the open fingers come down this far out from the grip centre
 YAWS = np.deg2rad(np.arange(-90, 90, 15))
+REACH_LIMIT = 0.72  # m (xy) from the robot base: beyond it, a hand low over the table straightens the elbow
+STRETCH_PENALTY = 10.0  # per metre beyond REACH_LIMIT: outweighs up to 4 cm of clearance per 4 cm of stretch
 
 
 @dataclass(frozen=True)
@@ -144,9 +146,11 @@ def _part_pinches(parts: np.ndarray) -> list[Grasp]:
     return grasps
 
 
-def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp | None:
+def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destination: np.ndarray | None = None) -> Grasp | None:
     """The clearest feasible top-down grasp of an object (pinch across a narrow side, a slender part,
-    or the rim of an open object); None if none fits (flat plates are pushed instead)."""
+    or the rim of an open object); None if none fits (flat plates are pushed instead). With the xy
+    `destination` the object is to be carried to, a rim grasp that would put the hand beyond the arm's
+    comfortable reach there is avoided: at full stretch the elbow locks straight and OSC stalls."""
     points = view.geom_points(entity)
     parts = points.reshape(-1, 8, 3)
     shape = Shape(points.min(axis=0), points.max(axis=0))
@@ -177,7 +181,11 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0) -> Grasp |
         # rim points on the robot's side: the object then hangs away from the robot and every later
         # move of the hand stays further inside the arm's reach.
         reach = float(np.linalg.norm(cand.position[:2] - base)) if cand.rim else 0.0
-        value = min(clearance, 0.04) * 10 - 0.02 * abs(cand.yaw - prefer_yaw) - 1.0 * reach
+        stretch = 0.0
+        if destination is not None:
+            at_destination = np.asarray(destination, dtype=float)[:2] + cand.position[:2] - centre[:2]
+            stretch = max(0.0, float(np.linalg.norm(at_destination - base)) - REACH_LIMIT)
+        value = min(clearance, 0.04) * 10 - 0.02 * abs(cand.yaw - prefer_yaw) - 1.0 * reach - STRETCH_PENALTY * stretch
         return value, Grasp(cand.position, cand.yaw, clearance, cand.rim)
 
     scored = [score(c) for c in pinches]

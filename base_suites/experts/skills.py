@@ -18,6 +18,9 @@ from base_suites.sim_view import SimView
 Actions = Generator[np.ndarray, None, bool]
 
 
+RELEASE_CLEARANCE = 0.02  # m the fingers open beyond the held width before the hand moves off
+
+
 @dataclass
 class SkillContext:
     """What every skill reads and writes: the sim view, the servo, the episode's knobs and RNG."""
@@ -44,26 +47,47 @@ class SkillContext:
             yield self.servo.action(pos_err, rot_err, grip, speed)
         return False
 
-    def hold(self, grip: float, steps: int, rot=None) -> Actions:
-        """Stay in place (orientation `rot` or current) while commanding the gripper."""
+    def hold(self, grip: float, steps: int, rot=None, until: Callable[[], bool] | None = None) -> Actions:
+        """Stay in place (orientation `rot` or current) while commanding the gripper, for `steps` steps
+        or until `until()` holds."""
         target = self.view.eef_position()
         rot = self.view.eef_rotation() if rot is None else rot
         self.servo.reset_integral()
         for _ in range(steps):
+            if until is not None and until():
+                break
             yield self.servo.action(target - self.view.eef_position(), rotation_error(rot, self.view.eef_rotation()), grip)
         return True
+
+    def release(self, rot=None, clearance: float = RELEASE_CLEARANCE, max_steps: int = 10) -> Actions:
+        """Open the gripper in place until the fingers stand `clearance` wider than they held: the hand
+        can then leave without dragging what it let go, and no step waits for the full stroke (half of
+        it, at LIBERO's 20 Hz, is a quarter second per placement)."""
+        held = self.view.gripper_opening()
+        return (yield from self.hold(OPEN, max_steps, rot, until=lambda: self.view.gripper_opening() >= held + clearance))
+
+
+def hand_down(view: SimView, yaw: float, at: np.ndarray | None = None, then: float = 0.0) -> np.ndarray:
+    """The hand pointing down with grasp yaw `yaw`, turned so that the wrist stays off its stop when the
+    hand gets to `at` (default: where it is) and, from there, turns `then` rad further about world z."""
+    base = view.robot_base_position()[:2]
+    here = view.eef_position()[:2]
+    there = here if at is None else np.asarray(at, dtype=float)[:2]
+    swing = float(np.arctan2(*(there - base)[::-1]) - np.arctan2(*(here - base)[::-1]))
+    return nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6], then=then, swing=swing)
 
 
 def _above(p: np.ndarray, z: float) -> np.ndarray:
     return np.array([p[0], p[1], z])
 
 
-def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
-    """Top-down grasp of `obj` and lift to carrying height; retries with a fresh grasp choice."""
+def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray | None = None) -> Actions:
+    """Top-down grasp of `obj` and lift to carrying height; retries with a fresh grasp choice. The xy
+    `destination` it will be carried to keeps the grasp one the arm can still set down there."""
     view = ctx.view
     for attempt in range(attempts):
-        grasp = choose_grasp(view, obj) or narrowest_pinch(view, obj)
-        rot = nearest_grasp_rotation(grasp.yaw, view.eef_rotation(), view.arm_joints()[6])
+        grasp = choose_grasp(view, obj, destination=destination) or narrowest_pinch(view, obj)
+        rot = hand_down(view, grasp.yaw, at=grasp.position)
         hover = max(view.eef_position()[2], grasp.position[2] + 0.12)
         target = grasp.position.copy()
         if "regrasp" in ctx.knobs and attempt == 0:
@@ -85,7 +109,9 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3) -> Actions:
     return False
 
 
-def _target_xy(view: SimView, target: str | np.ndarray, held: str | None = None, shared: bool = False) -> np.ndarray:
+def target_xy(view: SimView, target: str | np.ndarray, held: str | None = None, shared: bool = False) -> np.ndarray:
+    """Where in xy an object goes for `target`: a point as given, a region's centre (or, for the `held`
+    object, its free spot there), an object's position."""
     if not isinstance(target, str):
         return np.asarray(target, dtype=float)[:2]
     if target in view.regions:
@@ -136,6 +162,7 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
 
 
 
+APPROACH_CLEARANCE = 0.04  # m above its support where a set-down slows to the touch-down speed
 MISPLACE_OFFSET = (0.05, 0.08)  # the misplace knob sets objects down this far from their goal spot (m)
 # The drop knob lets go with the object's bottom this high above what lies below (m): twice the ITC's
 # 5 cm drop limit. The carrying height alone leaves only its 5 cm margin over a tall target.
@@ -178,7 +205,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     rot = view.eef_rotation()
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]) - np.pi / 2)
     upright = grasp_rotation(yaw)
-    goal_xy = _target_xy(view, target, held=obj, shared=shared)
+    goal_xy = target_xy(view, target, held=obj, shared=shared)
     # The misplace event is recorded at the release over the wrong spot, not when the offset is drawn:
     # an episode that times out before letting go (after a knock, a long regrasp) misplaced nothing, nor
     # does one whose shaking (`jerky`) carry let go far short of the wrong spot: it failed to carry.
@@ -207,9 +234,11 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
         yield from ctx.hold(OPEN, 10)
         yield from ctx.hold(OPEN, 10)
         return True
-    # Descend slowly until the held object touches its support (or anything but the robot).
-    # Only go down while the object is over its goal: correcting sideways first keeps it off rims and
-    # handles it would otherwise be set down on.
+    # Descend until the held object touches its support (or anything but the robot): at full speed
+    # down to `APPROACH_CLEARANCE` above what stands below (a carry over a cabinet starts 30 cm up, which
+    # at the touch-down speed alone took 70 steps), slowly from there. Only go down while the object is
+    # over its goal: correcting sideways first keeps it off rims and handles it would be set down on.
+    slow_below = carry_height(view, obj, goal_xy, margin=APPROACH_CLEARANCE)
     ctx.servo.reset_integral()
     for _ in range(150):
         xy_error = goal_xy - view.position(obj)[:2]
@@ -217,10 +246,13 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
         touching = [c.other(obj) for c in view.contacts() if c.involves(obj)]
         if any(e not in ("gripper", "robot") for e in touching) and np.linalg.norm(xy_error) < 0.03:
             break
-        yield ctx.servo.action(np.array([*xy_error, -0.02 if aligned else 0.0]), rotation_error(upright, view.eef_rotation()), CLOSE, speed=0.35)
+        high = view.eef_position()[2] - slow_below
+        down = -(high + 0.02) if high > 0 else -0.02
+        yield ctx.servo.action(np.array([*xy_error, down if aligned else 0.0]), rotation_error(upright, view.eef_rotation()), CLOSE,
+                               speed=1.0 if high > 0 else 0.35)
     if misplaced and _over(view, obj, goal_xy):
         ctx.events.append("misplace")
-    yield from ctx.hold(OPEN, 10, upright)
+    yield from ctx.release(upright)
     up = view.eef_position() + np.array([0, 0, 0.10])
     yield from ctx.goto(up, upright, OPEN, tol=0.02, max_steps=30)
     return True
@@ -251,7 +283,7 @@ def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015) -> 
     tall fixtures that often stand behind such objects."""
     view = ctx.view
     shape = shape_of(view, obj)
-    goal_xy = _target_xy(view, target)
+    goal_xy = target_xy(view, target)
     rot = grasp_rotation(0.0)
     press_z = shape.bottom + 0.004
     for _ in range(3):
