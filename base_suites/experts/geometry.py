@@ -146,6 +146,36 @@ def _part_pinches(parts: np.ndarray) -> list[Grasp]:
     return grasps
 
 
+RIM_INSET, RIM_DEPTH = 0.012, 0.018  # fingertips this far inside a rim's outer edge and below its top
+LEVEL_RADIAL = 0.26  # sin 15 deg: how far from level the wall's outward direction may be at a rim grasp
+
+
+def _rim_grasps(view: SimView, entity: str, yaw: float) -> list[Grasp]:
+    """Pinches across the wall of a wide open object (a bowl) at its rim, the fingers closing along
+    `yaw`'s axis, found in the object's own frame. The fingers must meet the wall where it stands upright
+    across the closing direction: all round an upright bowl, but on a tipped one (libero_spatial/5's
+    bowl slides off its ramekin and rests 51 deg tilted) only on the two sides level with the axis it
+    tipped about; elsewhere the wall leans across the fingers and slips out as they close."""
+    rotation, origin = view.rotation(entity), view.position(entity)
+    local = (view.geom_points(entity) - origin) @ rotation
+    axis = finger_axis(yaw)
+    radial = rotation.T @ np.array([axis[0], axis[1], 0.0])
+    if abs(radial[2]) > LEVEL_RADIAL:
+        return []
+    outward = radial[:2] / np.linalg.norm(radial[:2])
+    reach = local[:, :2] @ outward
+    middle = (reach.max() + reach.min()) / 2
+    centre = local[:, :2].mean(axis=0)
+    centre = centre + (middle - centre @ outward) * outward  # on the wall's midline along the closing axis
+    top = local[:, 2].max()
+    grasps = []
+    for side in (-1.0, 1.0):
+        rim = np.array([*(centre + side * ((reach.max() - reach.min()) / 2 - RIM_INSET) * outward), top])
+        point = origin + rotation @ rim
+        grasps.append(Grasp(np.array([point[0], point[1], point[2] - RIM_DEPTH]), yaw, 0.0, rim=True))
+    return grasps
+
+
 def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destination: np.ndarray | None = None) -> Grasp | None:
     """The clearest feasible top-down grasp of an object (pinch across a narrow side, a slender part,
     or the rim of an open object); None if none fits (flat plates are pushed instead). With the xy
@@ -165,13 +195,7 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destinatio
         if width <= MAX_WIDTH:
             pinches.append(Grasp(np.array([centre[0], centre[1], pinch_z]), float(yaw), 0.0, rim=False))
         elif shape.height > 0.03:
-            # Rim grasp of a wide round object: the fingers straddle the wall along the closing axis.
-            radius = width / 2
-            z = shape.top - 0.018
-            rims += [
-                Grasp(np.array([*(centre[:2] + s * (radius - 0.012) * axis[:2]), z]), float(yaw), 0.0, rim=True)
-                for s in (-1.0, 1.0)
-            ]
+            rims += _rim_grasps(view, entity, float(yaw))
 
     base = view.robot_base_position()[:2]
 
