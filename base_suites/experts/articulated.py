@@ -1,8 +1,9 @@
 """Skills for articulated fixtures: drawers (slide joints), doors (hinges), stove knobs.
 
 Drawers are pulled by their handle with the hand horizontal and the fingers pinching the handle bar
-from above and below, then pushed shut with the closed hand on the drawer front. Knobs are grasped by
-their grip bar and turned by rotating the wrist about the knob's vertical hinge.
+from above and below, then pushed shut with the closed fingertips on the drawer front, the hand pointing
+down. Doors swing along the arc of their free edge, opening the way LIBERO's own open ranges say. Knobs
+are grasped by their grip bar and turned by rotating the wrist about the knob's vertical hinge.
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ def _fixture(view: SimView, target: str) -> str:
     return view.region(target).parent if target in view.regions else target
 
 
-def _hand_facing(direction: np.ndarray, roll: float = 0.0) -> np.ndarray:
+def _hand_facing(direction: np.ndarray, roll: float) -> np.ndarray:
     """Rotation with the gripper pointing along `direction` (horizontal), fingers closing vertically,
     or `roll` rad away from vertical about the pointing axis."""
     z = np.asarray(direction, dtype=float) / np.linalg.norm(direction)

@@ -164,14 +164,12 @@ def _rim_grasps(view: SimView, entity: str, yaw: float) -> list[Grasp]:
         return []
     outward = radial[:2] / np.linalg.norm(radial[:2])
     reach = local[:, :2] @ outward
-    middle = (reach.max() + reach.min()) / 2
     centre = local[:, :2].mean(axis=0)
-    centre = centre + (middle - centre @ outward) * outward  # on the wall's midline along the closing axis
+    centre += ((reach.max() + reach.min()) / 2 - centre @ outward) * outward  # midway across the wall along the closing axis
     top = local[:, 2].max()
     grasps = []
     for side in (-1.0, 1.0):
-        rim = np.array([*(centre + side * ((reach.max() - reach.min()) / 2 - RIM_INSET) * outward), top])
-        point = origin + rotation @ rim
+        point = origin + rotation @ np.array([*(centre + side * (np.ptp(reach) / 2 - RIM_INSET) * outward), top])
         grasps.append(Grasp(np.array([point[0], point[1], point[2] - RIM_DEPTH]), yaw, 0.0, rim=True))
     return grasps
 
@@ -198,6 +196,7 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destinatio
             rims += _rim_grasps(view, entity, float(yaw))
 
     base = view.robot_base_position()[:2]
+    goal = None if destination is None else np.asarray(destination, dtype=float)[:2]
 
     def score(cand: Grasp) -> tuple[float, Grasp]:
         clearance = _hand_clearance(cand.position, cand.yaw, cand.position[2], obstacles)
@@ -205,10 +204,7 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destinatio
         # rim points on the robot's side: the object then hangs away from the robot and every later
         # move of the hand stays further inside the arm's reach.
         reach = float(np.linalg.norm(cand.position[:2] - base)) if cand.rim else 0.0
-        stretch = 0.0
-        if destination is not None:
-            at_destination = np.asarray(destination, dtype=float)[:2] + cand.position[:2] - centre[:2]
-            stretch = max(0.0, float(np.linalg.norm(at_destination - base)) - REACH_LIMIT)
+        stretch = 0.0 if goal is None else max(0.0, float(np.linalg.norm(goal + cand.position[:2] - centre[:2] - base)) - REACH_LIMIT)
         value = min(clearance, 0.04) * 10 - 0.02 * abs(cand.yaw - prefer_yaw) - 1.0 * reach - STRETCH_PENALTY * stretch
         return value, Grasp(cand.position, cand.yaw, clearance, cand.rim)
 
