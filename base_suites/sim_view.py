@@ -17,6 +17,7 @@ GRIPPER = "gripper"
 ARENA = "arena"
 _CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
 # Collision geoms of the two fingers (pad and finger body: a grasped can often rests on the finger body).
+PINCH_COS = 0.5  # a finger contact pinches when its normal lies within 60 deg of the closing axis
 FINGERS = (
     ("gripper0_finger1_collision", "gripper0_finger1_pad_collision"),
     ("gripper0_finger2_collision", "gripper0_finger2_pad_collision"),
@@ -41,6 +42,10 @@ class Contact:
         return self.entity_b if self.entity_a == entity else self.entity_a
 
 
+ON_TEST_HEIGHT = 0.10  # LIBERO's On test: an object's origin up to this far above the region's surface
+SHELF_TILT = (0.2, 0.95)  # cosines of a support's lean that make it a tilted shelf (not level, not a wall)
+
+
 @dataclass(frozen=True)
 class Region:
     """A BDDL region site: centre, orientation and half-extents (None where LIBERO gives none)."""
@@ -50,6 +55,18 @@ class Region:
     position: np.ndarray
     rotation: np.ndarray
     half_size: np.ndarray | None
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Where an object set on the region stands: the site itself, except on a tilted shelf (a wine
+        rack's, whose up axis leans ~60 deg), where LIBERO's On test looks up the slope from the site at
+        its front edge: the middle of that test's range (`ON_TEST_HEIGHT` above the surface, read
+        through the site's rotation as LIBERO reads it). Drawer sites have a level up axis: what goes
+        in them is tested against a box around the site instead."""
+        up = self.rotation[2]  # LIBERO reads offsets as rotation @ (p - site): this row is its "up"
+        if self.half_size is None or not SHELF_TILT[0] < abs(up[2]) < SHELF_TILT[1]:
+            return self.position
+        return self.position + (float(self.half_size[2]) + ON_TEST_HEIGHT / 2) * up
 
     def footprint(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The region's two horizontal axes (world xy unit vectors, one per column) and its half sizes
@@ -276,11 +293,16 @@ class SimView:
         return found
 
     def held_object(self) -> str | None:
-        """The movable object touched by both fingers, if any."""
+        """The movable object both fingers pinch, if any: each touches it with the contact pressing along
+        the closing axis (within 60 deg). Closed fingertips pressed down on a plate's floor to push it
+        touch it with both fingers too, but do not hold it."""
         data = self._data
+        closing = self.eef_rotation()[:, 0]
         touching: dict[str, set[int]] = {}
         for i in range(data.ncon):
             c = data.contact[i]
+            if abs(float(c.frame[:3] @ closing)) < PINCH_COS:
+                continue
             for finger_geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
                 side = self._finger_of_geom.get(finger_geom)
                 if side is not None:

@@ -99,7 +99,7 @@ class PoseAccuracy(Constraint):
         tol = np.full(2, p.place_xy_tolerance)
         if half is not None and placement.target in self._shared:
             tol = np.maximum(tol, half - p.region_edge_margin)
-        return region.position, axes, tol
+        return region.centre, axes, tol
 
     def _error(self, ctx: StepContext, placement: Placement) -> tuple[bool, str]:
         centre, axes, tol = self._centre(ctx, placement)

@@ -60,7 +60,7 @@ class SequenceIntegrity(Constraint):
         the object's reach (its farthest geometry from its centre, in xy) of the target's centre."""
         obj_xy = ctx.position(placement.obj)[:2]
         reach = float(np.max(np.linalg.norm(ctx.sim.geom_points(placement.obj)[:, :2] - obj_xy, axis=1)))
-        centre = ctx.region(placement.target).position if placement.target_is_region else ctx.position(placement.target)
+        centre = ctx.region(placement.target).centre if placement.target_is_region else ctx.position(placement.target)
         return float(np.linalg.norm(ctx.position(name)[:2] - centre[:2])) <= self.params.place_xy_tolerance + reach
 
     def check(self, ctx: StepContext) -> list[str]:

@@ -110,6 +110,27 @@ def test_a_drawer_region_footprint_is_the_drawer_floor(goal_env):
     assert np.all(0.6 * extent < 2 * half) and np.all(2 * half < extent), (half, extent)
 
 
+def test_a_wine_rack_shelf_centre_lies_up_its_slope_where_libero_tests_on(goal_env):
+    """The wine rack's top region sits at the front edge of a shelf sloping ~30 deg up away from the
+    robot, and LIBERO's On test looks up that slope from it: set down at the site's xy, a bottle stands
+    half over the edge, topples to the shelf below, and the task never succeeds. Level regions keep
+    their site as the centre."""
+    import mujoco
+
+    goal_env.reset(options={"init_state": 0})
+    view = goal_env.sim
+    shelf, table = view.region("wine_rack_1_top_region"), view.region("main_table_stove_region")
+    assert np.allclose(table.centre, table.position)
+    site = view._domain.object_sites_dict[shelf.name]
+    assert site.under(shelf.position, shelf.rotation, shelf.centre)  # LIBERO's own test holds there
+    model, data = view._model, view._domain.sim.data._data
+    geom = np.zeros(1, dtype=np.int32)
+    for dy in (-0.02, 0.0, 0.02):  # a bottle's footprint around the centre stands on the shelf itself
+        start = shelf.centre + [0.0, dy, 0.3]
+        drop = mujoco.mj_ray(model, data, start, np.array([0.0, 0.0, -1.0]), None, 1, -1, geom)
+        assert 0.3 - 0.03 < drop < 0.3 + 0.03, (dy, drop)
+
+
 def test_gymnasium_check_env_passes():
     from gymnasium.utils.env_checker import check_env
 

@@ -8,7 +8,8 @@ from annotations import DemoFile
 from base_suites import make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
 from base_suites.experts.control import finger_axis
-from base_suites.experts.geometry import REACH_LIMIT, YAWS, _rim_grasps, choose_grasp, shape_of
+from base_suites.experts import skills
+from base_suites.experts.geometry import REACH_LIMIT, YAWS, _rim_grasps, choose_grasp, shape_of, slide_path
 from base_suites.experts.skills import SkillContext
 from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
@@ -36,12 +37,38 @@ def _solve(suite, task, init=0, quality="clean", episode=0, reset_seed=None):
     ("libero_goal", 7, "turn knob"),
     ("libero_spatial", 0, "pick and place (rim grasp of a bowl)"),
     ("libero_spatial", 4, "pick from an open drawer, carry over the cabinet"),
+    ("libero_goal", 9, "set down on a tilted shelf (the wine rack)"),
 ])
 def test_expert_solves_one_task_per_primitive_family(suite, task, family):
     success, _, verdict = _solve(suite, task)
     assert success, family
     # clean means elegant too: the drawer pull once tipped the bowl and pressed the plate in front of it
     assert verdict["violated"] == [], (family, verdict["events"][:3])
+
+
+def test_a_plate_is_pushed_around_the_cream_cheese_into_its_region():
+    """libero_goal/5 ("push the plate to the front of the stove"): the cream cheese lies beside that spot,
+    across the straight line from the plate. The push goes around it and the plate ends in its region
+    with the cheese untouched; the fingertips press the plate's floor, which is no grasp."""
+    env = ITCWrapper(make_env("libero_goal", 5, seed=0))
+    obs, _ = env.reset(options={"init_state": 0})
+    view = env.unwrapped.sim
+    cheese = view.position("cream_cheese_1").copy()
+    path = slide_path(view, "plate_1", skills.target_xy(view, "main_table_stove_front_region", held="plate_1"))
+    assert len(path) > 1  # not the straight line through the cheese
+    expert = ScriptedExpert(env.unwrapped, quality="clean", seed=0)
+    expert.reset(env.unwrapped.metadata, episode=0)
+    info, held = {}, set()
+    for _ in range(env.unwrapped.max_steps):
+        obs, _, terminated, truncated, info = env.step(expert(obs))
+        held.add(view.held_object())
+        if terminated or truncated:
+            break
+    moved = float(np.linalg.norm(view.position("cream_cheese_1") - cheese))
+    env.close()
+    assert info["success"] and moved < 0.005, moved
+    assert held == {None}
+    assert info["itc_verdict"]["violated"] == [], info["itc_verdict"]["events"][:3]
 
 
 def test_an_object_under_the_opened_drawer_is_moved_clear_first():

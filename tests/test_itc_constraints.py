@@ -279,30 +279,24 @@ def test_monitor_refuses_steps_before_reset(env):
         ITCMonitor(env).step()
 
 
-def test_a_plate_pushed_into_its_region_past_an_object_in_the_way_is_elegant():
-    """libero_goal/5 ("push the plate to the front of the stove"), the label benchmark's demo 58: the cream
-    cheese stands where the plate must go, and LIBERO ends the episode as the plate's centre crosses into
-    the region, at its edge. Neither is a violation: the cheese is in the way (it may move, not tip), and
-    a pushed object is placed by the goal predicate itself. Both used to be false alarms of the clean expert."""
-    from base_suites.experts import ScriptedExpert
-    from base_suites.seeds import derive_seed
+def test_an_object_standing_where_the_goal_object_goes_may_be_moved_but_others_not():
+    """libero_goal/5 ("push the plate to the front of the stove"): the cream cheese lies where the wide
+    plate will stand, so moving it is in the way of the task, not a disturbance; the wine bottle, away
+    from the stove, is a distractor whose 5 cm move is."""
+    env = make_env(SCENE, 5, init_state=8, seed=0)
+    try:
+        monitor = ITCMonitor(env)
+        monitor.reset()
+        Scripted(env, monitor).wait(OPEN, 20)  # the distractors come to rest and are anchored
+        model = env.domain.sim.model._model
 
-    env = ITCWrapper(make_env(SCENE, 5, seed=0, max_steps=600))  # the demos' horizon: it took 320 steps
-    obs, _ = env.reset(seed=61105001, options={"init_state": 8})
-    sim = env.unwrapped.sim
-    cheese = sim.position("cream_cheese_1").copy()
-    region = sim.region("main_table_stove_front_region")
-    expert = ScriptedExpert(env.unwrapped, quality="mixed", seed=derive_seed(0, 5))  # as `elegant demos --seed 0` made it
-    expert.reset(env.unwrapped.metadata, episode=8)
-    assert not any(expert.knobs.values())  # that episode drew no knob: a clean execution
-    info = {}
-    for _ in range(env.unwrapped.max_steps):
-        obs, _, terminated, truncated, info = env.step(expert(obs))
-        if terminated or truncated:
-            break
-    offset = np.linalg.norm((sim.position("plate_1") - region.position)[:2])
-    moved = np.linalg.norm(sim.position("cream_cheese_1") - cheese)
-    env.close()
-    params = ITCParams()
-    assert info["success"] and offset > params.place_xy_tolerance and moved > params.distractor_move, (offset, moved)
-    assert info["itc_verdict"]["violated"] == [], info["itc_verdict"]["events"]
+        def shift(name: str) -> list[str]:
+            state = env.get_sim_state()
+            state[1 + model.jnt_qposadr[model.joint(env.domain.get_object(name).joints[0]).id]] += 0.05
+            env.set_sim_state(state)
+            return monitor.step().reasons.get("sequence", [])
+
+        assert shift("cream_cheese_1") == []
+        assert shift("wine_bottle_1")[0].startswith("disturbed wine_bottle_1: moved 5.0 cm")
+    finally:
+        env.close()

@@ -17,7 +17,7 @@ from base_suites.experts import articulated, skills
 from base_suites.experts.control import OPEN
 from base_suites.experts.skills import SkillContext
 
-EXPERT_VERSION = "scripted-4"
+EXPERT_VERSION = "scripted-5"
 KNOBS = ("collide", "drop", "misplace", "tilt", "wrong_order", "jerky", "regrasp")
 # "mixed": every knob possible, most episodes still clean in all but one or two respects.
 MIXED_RATES = {"collide": 0.2, "drop": 0.2, "misplace": 0.15, "tilt": 0.2, "wrong_order": 0.15, "jerky": 0.15, "regrasp": 0.15}

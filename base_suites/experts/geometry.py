@@ -251,3 +251,82 @@ def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 
         if len(near):
             tops.append(float(near[:, 2].max()))
     return max(tops) + margin + grip_to_bottom
+
+
+def push_yaw(view: SimView, entity: str, press: np.ndarray, direction: np.ndarray, z: float) -> float:
+    """Grasp yaw for pushing `entity` in `direction` with the fingertips at `press`: the hand's long side
+    across the push (two fingers wide), unless it lies along the push clearer of the neighbours (the
+    ~21 cm hand across a plate's push sweeps over the bowl beside it)."""
+    across = float(np.arctan2(direction[1], direction[0]))
+    obstacles = _obstacle_points(view, entity)
+    return max((across, across + np.pi / 2), key=lambda yaw: _hand_clearance(press, yaw, z, obstacles))
+
+
+SLIDE_GRID = 0.01  # m between the cells of the sliding planner's grid
+SLIDE_MARGIN = 0.15  # m the grid reaches beyond the start and the goal
+SLIDE_GAP = 0.02  # m a slid object's rim keeps from anything standing on the table
+BLOCKED_COST = 30.0  # a metre through a cell without that gap costs as much as this many metres clear
+
+
+def slide_path(view: SimView, entity: str, goal_xy: np.ndarray) -> list[np.ndarray]:
+    """Waypoints (xy, ending at `goal_xy`) along which to slide `entity` over the table so that its
+    footprint keeps `SLIDE_GAP` from everything else standing there: a plate pushed straight to the front
+    of libero_goal's stove runs into the cream cheese lying beside that spot, and shoves it along.
+    The shortest such path on a 1 cm grid (cells short of the gap are not forbidden but cost
+    `BLOCKED_COST` times their length, since the object may start or end close to a neighbour), then
+    shortened to the fewest straight legs that stay as clear."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.csgraph import dijkstra
+    from scipy.spatial import cKDTree
+
+    start, goal = view.position(entity)[:2], np.asarray(goal_xy, dtype=float)[:2]
+    radius = float(np.max(np.linalg.norm(view.geom_points(entity)[:, :2] - start, axis=1)))
+    shape = shape_of(view, entity)
+    others = [fill_boxes(view.geom_points(e).reshape(-1, 8, 3)) for e in view.objects + view.fixtures if e != entity]
+    points = np.concatenate(others) if others else np.zeros((0, 3))
+    points = points[(points[:, 2] > view.table_height + 0.003) & (points[:, 2] < shape.top + 0.01)][:, :2]
+    if len(points) == 0:
+        return [goal]
+    tree = cKDTree(points)
+    low = np.minimum(start, goal) - SLIDE_MARGIN
+    nx, ny = (np.ceil((np.maximum(start, goal) + SLIDE_MARGIN - low) / SLIDE_GRID).astype(int) + 1)
+    cells = low + SLIDE_GRID * np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), axis=-1).reshape(-1, 2)
+    weight = np.where(tree.query(cells)[0] > radius + SLIDE_GAP, 1.0, BLOCKED_COST)
+    rows, cols, costs = [], [], []
+    index = np.arange(nx * ny).reshape(nx, ny)
+    for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        a = index[max(0, -dx):nx - max(0, dx), max(0, -dy):ny - max(0, dy)].ravel()
+        b = index[max(0, dx):nx - max(0, -dx) or None, max(0, dy):ny - max(0, -dy) or None].ravel()
+        step = SLIDE_GRID * np.hypot(dx, dy) * (weight[a] + weight[b]) / 2
+        rows += [a, b]
+        cols += [b, a]
+        costs += [step, step]
+    graph = csr_matrix((np.concatenate(costs), (np.concatenate(rows), np.concatenate(cols))), shape=(nx * ny, nx * ny))
+    source = int(np.argmin(np.linalg.norm(cells - start, axis=1)))
+    sink = int(np.argmin(np.linalg.norm(cells - goal, axis=1)))
+    _, previous = dijkstra(graph, indices=source, return_predecessors=True)
+    chain = [sink]
+    while chain[-1] != source and previous[chain[-1]] >= 0:
+        chain.append(int(previous[chain[-1]]))
+    path = [start] + [cells[i] for i in reversed(chain[1:-1])] + [goal]
+    return _straighten(path, tree, radius + SLIDE_GAP)
+
+
+def _straighten(path: list[np.ndarray], tree, needed: float) -> list[np.ndarray]:
+    """The grid path as few straight legs: from each corner, the farthest later point reached by a
+    straight leg at least as clear as the grid path between them (or clear by `needed`)."""
+    clear = tree.query(np.array(path))[0]
+    legs, i = [], 0
+    while i < len(path) - 1:
+        j = len(path) - 1
+        while j > i + 1 and _leg_clearance(tree, path[i], path[j]) < min(needed, clear[i:j + 1].min()) - 1e-9:
+            j -= 1
+        legs.append(path[j])
+        i = j
+    return legs
+
+
+def _leg_clearance(tree, a: np.ndarray, b: np.ndarray) -> float:
+    """Smallest distance from the straight leg a -> b (sampled every grid cell) to an obstacle point."""
+    n = max(2, int(np.ceil(np.linalg.norm(b - a) / SLIDE_GRID)) + 1)
+    return float(tree.query(np.linspace(a, b, n))[0].min())

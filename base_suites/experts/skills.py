@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rotation_error
-from base_suites.experts.geometry import carry_height, choose_grasp, fill_boxes, narrowest_pinch, shape_of
+from base_suites.experts.geometry import carry_height, choose_grasp, fill_boxes, narrowest_pinch, push_yaw, shape_of, slide_path
 from base_suites.sim_view import SimView
 
 Actions = Generator[np.ndarray, None, bool]
@@ -115,7 +115,7 @@ def target_xy(view: SimView, target: str | np.ndarray, held: str | None = None, 
     if not isinstance(target, str):
         return np.asarray(target, dtype=float)[:2]
     if target in view.regions:
-        return _free_spot(view, target, held, shared) if held is not None else view.region(target).position[:2]
+        return _free_spot(view, target, held, shared) if held is not None else view.region(target).centre[:2]
     return view.position(target)[:2]
 
 
@@ -129,7 +129,7 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
     the region's centre, else the spot with the most room, within the inner part of the region. A region
     that several goal objects share gets its first object off-centre, leaving room for the next."""
     region = view.region(region_name)
-    centre = region.position[:2]
+    centre = region.centre[:2]
     axes, half = region.footprint()
     if half is None:
         return centre
@@ -138,17 +138,21 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
         # A drawer: the cabinet above its back part (the drawer is only pulled out so far) counts too.
         others.append(fill_boxes(view.geom_points(region.parent).reshape(-1, 8, 3)))
     others = np.concatenate([p[p[:, 2] > region.position[2] + 0.01][:, :2] for p in others] or [np.zeros((0, 2))])
-    inside = np.all(np.abs((others - centre) @ axes) <= half, axis=1) if len(others) else np.zeros(0, dtype=bool)
-    if not inside.any():
-        if not shared:
-            return centre
-        long_axis = int(np.argmax(half))
-        return centre + axes[:, long_axis] * SHARED_OFFSET * half[long_axis]
+    if not len(others):
+        return centre
     from scipy.spatial import cKDTree
 
     tree = cKDTree(others)
     # The footprint filled, not just its corners: a small object could otherwise sit inside it unseen.
     footprint = fill_boxes(view.geom_points(held).reshape(-1, 8, 3))[:, :2] - view.position(held)[:2]
+    if not np.all(np.abs((others - centre) @ axes) <= half, axis=1).any():
+        if shared:
+            long_axis = int(np.argmax(half))
+            return centre + axes[:, long_axis] * SHARED_OFFSET * half[long_axis]
+        if float(tree.query(footprint + centre)[0].min()) > gap:
+            return centre
+        # An object larger than the region (a plate in front of the stove) reaches beyond it, to what
+        # stands around it: searched like a region that something stands in.
     grid = np.linspace(-INNER, INNER, 9)
     spots = sorted((centre + axes @ (np.array([u, v]) * half) for u in grid for v in grid), key=lambda p: float(np.linalg.norm(p - centre)))
     best, best_room = centre, -np.inf
@@ -277,33 +281,90 @@ def knock(ctx: SkillContext, victim: str) -> Actions:
     return True
 
 
-def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015) -> Actions:
-    """Slide a flat object (a plate) over the table to `target`: the closed fingertips press on its
-    inside near the centre and drag it by friction. Coming from above keeps the hand clear of the
-    tall fixtures that often stand behind such objects."""
+# m inside its leading rim where the fingertips' leading face presses a pushed dish: over its foot. Out on
+# the rim, beyond the foot, the press tips the dish up about the foot's edge and the fingers ride over it.
+RIM_INSET = 0.034
+CLOSED_FINGERS_HALF_SPAN = 0.024  # m the closed fingertips reach from the grip point along their closing axis
+FINGER_HALF_DEPTH = 0.014  # ... and across it
+PUSH_SPEED = 0.7
+PRESS_DEPTH = 0.01  # m below where they touched the floor that the fingertips are held: a light press
+RECONTACT = 0.03  # m the fingertips may drift off their press point before they are set down again
+LOOKAHEAD = 0.04  # m along the path ahead of the object that it is steered towards
+
+
+def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015, max_steps: int = 250) -> Actions:
+    """Slide a flat object (a plate) over the table to `target` along `slide_path`, around what stands
+    in the way, steered towards a point `LOOKAHEAD` ahead on that path. The closed fingertips press on
+    the dish's floor just short of its leading rim: the floor drags it and the rim's gently sloped inner
+    wall takes the push where the floor slips. Pressed beyond its foot, out on the rim, a plate tips
+    up about the foot's edge and rides over the fingers. Coming down from above keeps the hand clear of
+    the tall fixtures that often stand behind such objects; the hand's long side lies across the push."""
     view = ctx.view
     shape = shape_of(view, obj)
-    goal_xy = target_xy(view, target)
-    rot = grasp_rotation(0.0)
     press_z = shape.bottom + 0.004
-    for _ in range(3):
+    hover = shape.top + 0.03
+    footprint = view.geom_points(obj)[:, :2] - view.position(obj)[:2]
+    goal_xy = target_xy(view, target, held=obj)
+    path = [view.position(obj)[:2]] + slide_path(view, obj, goal_xy)
+    rot, floor, pressing = None, press_z, False
+    for _ in range(max_steps):
         obj_xy = view.position(obj)[:2]
-        if np.linalg.norm(goal_xy - obj_xy) < tolerance:
+        if np.linalg.norm(goal_xy - obj_xy) < tolerance * 0.6:
             break
-        yield from ctx.goto(_above(obj_xy, max(view.eef_position()[2], shape.top + 0.08)), rot, CLOSE, tol=0.015, max_steps=100)
-        yield from ctx.goto(_above(obj_xy, shape.top + 0.01), rot, CLOSE, tol=0.01, max_steps=60, speed=0.5)
-        yield from ctx.goto(_above(obj_xy, press_z), rot, CLOSE, tol=0.004, max_steps=25, speed=0.3)
-        ctx.servo.reset_integral()
-        for _ in range(150):
-            obj_xy = view.position(obj)[:2]
-            remaining = goal_xy - obj_xy
-            if np.linalg.norm(remaining) < tolerance * 0.6:
-                break
-            eef = view.eef_position()
-            aim = np.array([*(eef[:2] + remaining), press_z])
-            yield ctx.servo.action(aim - eef, rotation_error(rot, view.eef_rotation()), CLOSE, speed=0.3)
-        yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), rot, CLOSE, tol=0.02, max_steps=30)
+        ahead = _lookahead(path, obj_xy, LOOKAHEAD)
+        direction = (ahead - obj_xy) / max(np.linalg.norm(ahead - obj_xy), 1e-6)
+        if rot is None:  # one hand orientation for the whole push: turning it costs more than any gain
+            rot = hand_down(view, push_yaw(view, obj, obj_xy + direction * _press_reach(footprint, direction), direction, press_z), at=obj_xy)
+        press = obj_xy + direction * (_press_reach(footprint, direction) - _fingertip_reach(rot, direction))
+        eef = view.eef_position()
+        if not pressing or eef[2] > shape.top + 0.01 or np.linalg.norm(eef[:2] - press) > RECONTACT:
+            if eef[2] < hover - 0.01:
+                yield from ctx.goto(_above(eef, hover), view.eef_rotation(), CLOSE, tol=0.01, max_steps=20)
+            yield from ctx.goto(_above(press, max(view.eef_position()[2], hover)), rot, CLOSE, tol=0.015, rot_tol=0.15, max_steps=80)
+            yield from ctx.goto(_above(press, hover), rot, CLOSE, tol=0.01, max_steps=40)
+            touching = lambda: any(c.involves(obj) and c.other(obj) == "gripper" for c in view.contacts())  # noqa: E731
+            yield from ctx.goto(_above(press, press_z), rot, CLOSE, tol=0.006, max_steps=30, speed=0.5, until=touching)
+            floor, pressing = view.eef_position()[2] - PRESS_DEPTH, True
+            ctx.servo.reset_integral()
+            continue
+        step = min(float(np.linalg.norm(goal_xy - obj_xy)), LOOKAHEAD)
+        aim = np.array([*(press + direction * step), floor])
+        ctx.servo.reset_integral()  # proportional only: the push is steered by where the object goes
+        yield ctx.servo.action(aim - eef, rotation_error(rot, view.eef_rotation()), CLOSE, speed=PUSH_SPEED)
+    yield from ctx.goto(_above(view.eef_position(), hover + 0.05), view.eef_rotation(), CLOSE, tol=0.02, max_steps=30)
     return bool(np.linalg.norm(goal_xy - view.position(obj)[:2]) < tolerance)
+
+
+def _press_reach(footprint: np.ndarray, direction: np.ndarray) -> float:
+    """How far from a dish's centre, towards `direction`, the fingertips' leading face presses."""
+    return float(np.max(footprint @ direction)) - RIM_INSET
+
+
+def _fingertip_reach(rot: np.ndarray, direction: np.ndarray) -> float:
+    """How far the closed fingertips reach from the grip point towards the horizontal `direction` for
+    the hand orientation `rot` (its x axis is the fingers' closing axis)."""
+    closing, across = rot[:2, 0], rot[:2, 1]
+    return float(abs(closing @ direction) * CLOSED_FINGERS_HALF_SPAN + abs(across @ direction) * FINGER_HALF_DEPTH)
+
+
+def _lookahead(path: list[np.ndarray], point: np.ndarray, distance: float) -> np.ndarray:
+    """The point `distance` further along the polyline `path` than the path's point nearest `point`."""
+    legs = list(zip(path, path[1:]))
+    nearest = []
+    for a, b in legs:
+        t = float(np.clip((point - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0))
+        nearest.append(np.linalg.norm(a + t * (b - a) - point))
+    leg = int(np.argmin(nearest))
+    a, b = legs[leg]
+    t = float(np.clip((point - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0))
+    left, here = distance, a + t * (b - a)
+    for a, b in legs[leg:]:
+        span = float(np.linalg.norm(b - here))
+        if span >= left:
+            return here + (b - here) * (left / max(span, 1e-12))
+        left -= span
+        here = b
+    return path[-1]
 
 
 def can_grasp(view: SimView, obj: str) -> bool:
