@@ -71,6 +71,22 @@ def test_a_plate_is_pushed_around_the_cream_cheese_into_its_region():
     assert info["itc_verdict"]["violated"] == [], info["itc_verdict"]["events"][:3]
 
 
+def test_a_mug_goes_into_the_microwave_through_its_doorway():
+    """libero_10/9 ("put the mug in the microwave and close it"): the heating region has a roof, so a
+    top-down carry set the mug on top of the microwave. The doorway faces the shut door's normal; the
+    mug is held by its handle, turned to trail it outward, and slid in below the roof, the hand staying
+    outside; the door is then swung shut from behind its edge."""
+    env = make_env("libero_10", 9, seed=0)
+    env.reset(options={"init_state": 0})
+    facing, front = articulated.doorway(env.sim, "microwave_1_heating_region")
+    assert np.allclose(facing, [0.0, -1.0, 0.0], atol=1e-6) and abs(front + 0.268) < 0.005, (facing, front)
+    assert articulated.doorway(env.sim, "kitchen_table_porcelain_mug_front_region") is None  # on the table: from above
+    env.close()
+    success, _, verdict = _solve("libero_10", 9)
+    assert success
+    assert not {"collision", "sequence"} & set(verdict["violated"]), verdict["events"][:3]
+
+
 def test_an_object_under_the_opened_drawer_is_moved_clear_first():
     """libero_goal/3: the bowl stands where the top drawer will stick out; picking it from under the
     open drawer is impossible top-down, so the plan moves it out of the drawer's way before opening."""

@@ -93,6 +93,29 @@ def clear_spot(view: SimView, target: str, obj: str, margin: float = 0.04) -> np
     return centre + opening[:2] * (front - centre @ opening[:2] - behind + margin)
 
 
+def doorway(view: SimView, target: str) -> tuple[np.ndarray, float] | None:
+    """For a region behind a hinged door (a microwave's heating region): the horizontal direction its
+    doorway faces and where the doorway's plane lies along it (the closed door's inner face). None for
+    regions open from above. Objects go in through the doorway: a top-down carry sets them on the roof."""
+    joints = view.articulation_joints(target) if target in view.regions else ()
+    if not joints or view.region_joints(target) or _is_slide(view, joints[0]):
+        return None
+    info = view.joint(joints[0])
+    entity = _fixture(view, target)
+    closed = float(info["range"][1] if view.opening_sign(entity) < 0 else info["range"][0])
+    turn = rot_axis(info["axis"], closed - info["qpos"])
+    door = (view.geom_points(entity, body=info["body"]) - info["anchor"]) @ turn.T + info["anchor"]
+    flat = door[:, :2] - door[:, :2].mean(axis=0)
+    _, vectors = np.linalg.eigh(flat.T @ flat)
+    # The shut door's thinnest horizontal direction is its normal; a handle and frame skew it by a few
+    # degrees, so it is taken as the fixture's own horizontal axis closest to it.
+    axes = view.rotation(entity)[:, :2].T
+    facing = np.array([*(axes[np.argmax(np.abs(axes @ np.array([*vectors[:, 0], 0.0])))][:2]), 0.0])
+    if facing @ (door.mean(axis=0) - view.region(target).position) < 0:
+        facing = -facing
+    return facing, float((door @ facing).min())
+
+
 def open_(ctx: SkillContext, target: str) -> Actions:
     """Open a drawer (pull its handle) or a hinged door; True once LIBERO calls it open."""
     view = ctx.view
@@ -188,6 +211,7 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
 
 
 DOOR_STEP = 0.25  # rad of door swing per waypoint along the free edge's arc
+DOOR_BEHIND = 0.5  # rad behind the door's edge where the hand comes down: beyond the door's thickness
 
 
 def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
@@ -206,12 +230,19 @@ def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
     sign = view.opening_sign(entity) * (1.0 if opening else -1.0)
     rot = grasp_rotation(0.0)
     query = "open" if opening else "close"
-    for step in range(1, int(np.ptp(info["range"]) / DOOR_STEP) + 2):  # as far as the hinge turns
-        angle = sign * DOOR_STEP * step
-        r = rot_axis(axis, angle)
-        point = anchor + r @ arm * (0.85)
+    def along_arc(angle: float) -> np.ndarray:
+        point = anchor + rot_axis(axis, sign * angle) @ arm * 0.85
         point[2] = edge[2] if abs(axis[2]) > 0.9 else point[2]
-        yield from ctx.goto(point, rot, CLOSE, tol=0.02, max_steps=40, speed=0.6)
+        return point
+
+    # Come down behind the door's edge from above, clear of the door and of what the hand just left.
+    behind = along_arc(-DOOR_BEHIND)
+    over = max(view.eef_position()[2], pts[:, 2].max() + 0.05)
+    yield from ctx.goto(np.array([*view.eef_position()[:2], over]), rot, CLOSE, tol=0.03, max_steps=40)
+    yield from ctx.goto(np.array([*behind[:2], over]), rot, CLOSE, tol=0.03, max_steps=60)
+    yield from ctx.goto(behind, rot, CLOSE, tol=0.02, max_steps=40)
+    for step in range(1, int(np.ptp(info["range"]) / DOOR_STEP) + 2):  # as far as the hinge turns
+        yield from ctx.goto(along_arc(DOOR_STEP * step), rot, CLOSE, tol=0.02, max_steps=40, speed=0.6)
         if view.predicate((query, target)):
             break
     yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), rot, OPEN, tol=0.03, max_steps=30)

@@ -15,6 +15,7 @@ from base_suites.env import LiberoEnv
 from base_suites.errors import UserInputError, unknown_choice
 from base_suites.experts import articulated, skills
 from base_suites.experts.control import OPEN
+from base_suites.experts.geometry import handle_pinch
 from base_suites.experts.skills import SkillContext
 
 EXPERT_VERSION = "scripted-5"
@@ -106,6 +107,10 @@ def _clear_drawer_path(ctx: SkillContext, obj: str, drawer: str) -> skills.Actio
 def _pick_place(ctx: SkillContext, obj: str, target: str, shared: bool = False) -> skills.Actions:
     if not skills.can_grasp(ctx.view, obj):
         return (yield from skills.push(ctx, obj, target))
+    door = articulated.doorway(ctx.view, target)
+    if door is not None:
+        ok = yield from skills.pick(ctx, obj, grasp_with=handle_pinch)
+        return ok and (yield from skills.insert(ctx, obj, target, *door))
     ok = yield from skills.pick(ctx, obj, destination=skills.target_xy(ctx.view, target))
     if not ok:
         return False

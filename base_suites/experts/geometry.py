@@ -216,6 +216,15 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destinatio
     return max(scored, key=lambda vs: vs[0])[1] if scored else None
 
 
+def handle_pinch(view: SimView, entity: str) -> Grasp | None:
+    """The pinch of the slender part standing farthest out from the object's origin (a mug's handle):
+    held there, the object leads with its body and the hand trails behind it. None without one."""
+    parts = view.geom_points(entity).reshape(-1, 8, 3)
+    origin = view.position(entity)[:2]
+    pinches = _part_pinches(parts)
+    return max(pinches, key=lambda g: float(np.linalg.norm(g.position[:2] - origin)), default=None)
+
+
 def narrowest_pinch(view: SimView, entity: str) -> Grasp:
     """The last resort when `choose_grasp` finds nothing: close across the object's narrowest side."""
     points = view.geom_points(entity)
@@ -296,7 +305,7 @@ def slide_path(view: SimView, entity: str, goal_xy: np.ndarray) -> list[np.ndarr
     index = np.arange(nx * ny).reshape(nx, ny)
     for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
         a = index[max(0, -dx):nx - max(0, dx), max(0, -dy):ny - max(0, dy)].ravel()
-        b = index[max(0, dx):nx - max(0, -dx) or None, max(0, dy):ny - max(0, -dy) or None].ravel()
+        b = index[max(0, dx):nx - max(0, -dx), max(0, dy):ny - max(0, -dy)].ravel()
         step = SLIDE_GRID * np.hypot(dx, dy) * (weight[a] + weight[b]) / 2
         rows += [a, b]
         cols += [b, a]

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rotation_error
-from base_suites.experts.geometry import carry_height, choose_grasp, fill_boxes, narrowest_pinch, push_yaw, shape_of, slide_path
+from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rot_z, rotation_error
+from base_suites.experts.geometry import Grasp, carry_height, choose_grasp, fill_boxes, narrowest_pinch, push_yaw, shape_of, slide_path
 from base_suites.sim_view import SimView
 
 Actions = Generator[np.ndarray, None, bool]
@@ -81,12 +81,13 @@ def _above(p: np.ndarray, z: float) -> np.ndarray:
     return np.array([p[0], p[1], z])
 
 
-def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray | None = None) -> Actions:
+def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray | None = None, grasp_with: Callable[[SimView, str], Grasp | None] | None = None) -> Actions:
     """Top-down grasp of `obj` and lift to carrying height; retries with a fresh grasp choice. The xy
-    `destination` it will be carried to keeps the grasp one the arm can still set down there."""
+    `destination` it will be carried to keeps the grasp one the arm can still set down there;
+    `grasp_with` picks the grasp instead (a handle, for a carry through a doorway)."""
     view = ctx.view
     for attempt in range(attempts):
-        grasp = choose_grasp(view, obj, destination=destination) or narrowest_pinch(view, obj)
+        grasp = (grasp_with and grasp_with(view, obj)) or choose_grasp(view, obj, destination=destination) or narrowest_pinch(view, obj)
         rot = hand_down(view, grasp.yaw, at=grasp.position)
         hover = max(view.eef_position()[2], grasp.position[2] + 0.12)
         target = grasp.position.copy()
@@ -260,6 +261,53 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     up = view.eef_position() + np.array([0, 0, 0.10])
     yield from ctx.goto(up, upright, OPEN, tol=0.02, max_steps=30)
     return True
+
+
+SILL_CLEARANCE = 0.025  # m above the doorway's floor that an object is carried in
+HAND_OUTSIDE = 0.04  # m the grip point stays outside a doorway's plane: the hand's half thickness and a margin
+
+
+def insert(ctx: SkillContext, obj: str, target: str, facing: np.ndarray, front: float) -> Actions:
+    """Carry the held `obj` into region `target` through a doorway that faces `facing` (horizontal) with
+    its plane at `front` along it, and set it down there. The hand holds the object's trailing part (a
+    mug by its handle) and turns it to trail outward; it comes down outside the doorway to just above
+    the floor and slides the object in, stopping outside the doorway's plane itself: the roof above
+    it leaves no room for a hand over the object."""
+    view = ctx.view
+    region = view.region(target)
+    grip, origin = view.eef_position(), view.position(obj)
+    trail = grip[:2] - origin[:2]
+    reach = float(np.linalg.norm(trail))
+    turn = float(np.arctan2(facing[1], facing[0]) - np.arctan2(trail[1], trail[0]))
+    rot = rot_z((turn + np.pi) % (2 * np.pi) - np.pi) @ view.eef_rotation()
+    floor, _ = _floor_and_roof(view, target)
+    points = view.geom_points(obj)
+    radius = float(np.max(np.linalg.norm(points[:, :2] - grip[:2], axis=1)))
+    z = floor + SILL_CLEARANCE + grip[2] - float(points[:, 2].min())
+    lateral = region.position[:2] - facing[:2] * float(region.position[:2] @ facing[:2])
+    inside = np.array([*(lateral + facing[:2] * (front + HAND_OUTSIDE)), z])
+    outside = np.array([*(lateral + facing[:2] * (front + radius + 0.02)), z])
+    carry = max(view.eef_position()[2], carry_height(view, obj, outside[:2]))
+    yield from ctx.goto(_above(outside, carry), rot, CLOSE, tol=0.02, rot_tol=0.1, max_steps=120)
+    yield from ctx.goto(outside, rot, CLOSE, tol=0.01, max_steps=60)
+    yield from ctx.goto(inside, rot, CLOSE, tol=0.004, max_steps=80, speed=0.35)
+    ctx.events.append(f"insert:{reach:.3f}")
+    touching = lambda: any(c.involves(obj) and c.other(obj) not in ("gripper", "robot") for c in view.contacts())  # noqa: E731
+    yield from ctx.goto(inside - [0.0, 0.0, SILL_CLEARANCE + 0.01], rot, CLOSE, tol=0.006, max_steps=30, speed=0.35, until=touching)
+    yield from ctx.release(rot)
+    yield from ctx.goto(view.eef_position() + np.array([*(facing[:2] * 0.06), 0.0]), rot, OPEN, tol=0.02, max_steps=30)
+    return True
+
+
+def _floor_and_roof(view: SimView, target: str) -> tuple[float, float]:
+    """Heights of what the region's fixture has right under and right over the region's centre."""
+    region = view.region(target)
+    axes, half = region.footprint()
+    pts = view.geom_points(region.parent)
+    local = np.abs((pts[:, :2] - region.position[:2]) @ axes)
+    over = pts[np.all(local <= half, axis=1)] if half is not None else pts
+    below, above = over[over[:, 2] < region.position[2]], over[over[:, 2] > region.position[2]]
+    return float(below[:, 2].max()), float(above[:, 2].min())
 
 
 def knock(ctx: SkillContext, victim: str) -> Actions:
