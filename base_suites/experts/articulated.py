@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
-from base_suites.experts.skills import Actions, SkillContext, hand_down
+from base_suites.experts.skills import Actions, SkillContext, floor_and_roof, hand_down
 from base_suites.sim_view import SimView
 
 
@@ -94,11 +94,12 @@ def clear_spot(view: SimView, target: str, obj: str, margin: float = 0.04) -> np
 
 
 def doorway(view: SimView, target: str) -> tuple[np.ndarray, float] | None:
-    """For a region behind a hinged door (a microwave's heating region): the horizontal direction its
-    doorway faces and where the doorway's plane lies along it (the closed door's inner face). None for
-    regions open from above. Objects go in through the doorway: a top-down carry sets them on the roof."""
+    """For a region under a roof behind a hinged door (a microwave's heating region): the horizontal
+    direction its doorway faces and where the doorway's plane lies along it (the closed door's inner
+    face). None for regions open from above, such as a stove's burner, whose knob is a hinge too.
+    Objects go in through the doorway: a top-down carry sets them on the roof."""
     joints = view.articulation_joints(target) if target in view.regions else ()
-    if not joints or view.region_joints(target) or _is_slide(view, joints[0]):
+    if not joints or view.region_joints(target) or _is_slide(view, joints[0]) or floor_and_roof(view, target)[1] is None:
         return None
     info = view.joint(joints[0])
     entity = _fixture(view, target)

@@ -280,7 +280,7 @@ def insert(ctx: SkillContext, obj: str, target: str, facing: np.ndarray, front: 
     reach = float(np.linalg.norm(trail))
     turn = float(np.arctan2(facing[1], facing[0]) - np.arctan2(trail[1], trail[0]))
     rot = rot_z((turn + np.pi) % (2 * np.pi) - np.pi) @ view.eef_rotation()
-    floor, _ = _floor_and_roof(view, target)
+    floor, _ = floor_and_roof(view, target)
     points = view.geom_points(obj)
     radius = float(np.max(np.linalg.norm(points[:, :2] - grip[:2], axis=1)))
     z = floor + SILL_CLEARANCE + grip[2] - float(points[:, 2].min())
@@ -299,15 +299,16 @@ def insert(ctx: SkillContext, obj: str, target: str, facing: np.ndarray, front: 
     return True
 
 
-def _floor_and_roof(view: SimView, target: str) -> tuple[float, float]:
-    """Heights of what the region's fixture has right under and right over the region's centre."""
+def floor_and_roof(view: SimView, target: str) -> tuple[float | None, float | None]:
+    """Heights of what the region's fixture has right under and right over the region (None where it
+    has nothing: a stove's burner region has no roof)."""
     region = view.region(target)
     axes, half = region.footprint()
     pts = view.geom_points(region.parent)
     local = np.abs((pts[:, :2] - region.position[:2]) @ axes)
     over = pts[np.all(local <= half, axis=1)] if half is not None else pts
     below, above = over[over[:, 2] < region.position[2]], over[over[:, 2] > region.position[2]]
-    return float(below[:, 2].max()), float(above[:, 2].min())
+    return (float(below[:, 2].max()) if len(below) else None), (float(above[:, 2].min()) if len(above) else None)
 
 
 def knock(ctx: SkillContext, victim: str) -> Actions:
