@@ -277,7 +277,6 @@ def insert(ctx: SkillContext, obj: str, target: str, facing: np.ndarray, front: 
     region = view.region(target)
     grip, origin = view.eef_position(), view.position(obj)
     trail = grip[:2] - origin[:2]
-    reach = float(np.linalg.norm(trail))
     turn = float(np.arctan2(facing[1], facing[0]) - np.arctan2(trail[1], trail[0]))
     rot = rot_z((turn + np.pi) % (2 * np.pi) - np.pi) @ view.eef_rotation()
     floor, _ = floor_and_roof(view, target)
@@ -291,7 +290,6 @@ def insert(ctx: SkillContext, obj: str, target: str, facing: np.ndarray, front: 
     yield from ctx.goto(_above(outside, carry), rot, CLOSE, tol=0.02, rot_tol=0.1, max_steps=120)
     yield from ctx.goto(outside, rot, CLOSE, tol=0.01, max_steps=60)
     yield from ctx.goto(inside, rot, CLOSE, tol=0.004, max_steps=80, speed=0.35)
-    ctx.events.append(f"insert:{reach:.3f}")
     touching = lambda: any(c.involves(obj) and c.other(obj) not in ("gripper", "robot") for c in view.contacts())  # noqa: E731
     yield from ctx.goto(inside - [0.0, 0.0, SILL_CLEARANCE + 0.01], rot, CLOSE, tol=0.006, max_steps=30, speed=0.35, until=touching)
     yield from ctx.release(rot)
