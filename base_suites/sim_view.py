@@ -17,11 +17,11 @@ GRIPPER = "gripper"
 ARENA = "arena"
 _CORNERS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=float)
 # Collision geoms of the two fingers (pad and finger body: a grasped can often rests on the finger body).
-PINCH_COS = 0.5  # a finger contact pinches when its normal lies within 60 deg of the closing axis
 FINGERS = (
     ("gripper0_finger1_collision", "gripper0_finger1_pad_collision"),
     ("gripper0_finger2_collision", "gripper0_finger2_pad_collision"),
 )
+PINCH_COS = 0.5  # a finger contact pinches when its normal lies within 60 deg of the closing axis
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
-from base_suites.experts.skills import Actions, SkillContext, floor_and_roof, hand_down
+from base_suites.experts.geometry import floor_and_roof
+from base_suites.experts.skills import Actions, SkillContext, hand_down
 from base_suites.sim_view import SimView
 
 

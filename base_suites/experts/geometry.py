@@ -262,6 +262,18 @@ def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 
     return max(tops) + margin + grip_to_bottom
 
 
+def floor_and_roof(view: SimView, target: str) -> tuple[float | None, float | None]:
+    """Heights of what the region's fixture has right under and right over the region (None where it
+    has nothing: a stove's burner region has no roof)."""
+    region = view.region(target)
+    axes, half = region.footprint()
+    pts = view.geom_points(region.parent)
+    local = np.abs((pts[:, :2] - region.position[:2]) @ axes)
+    over = pts[np.all(local <= half, axis=1)] if half is not None else pts
+    below, above = over[over[:, 2] < region.position[2]], over[over[:, 2] > region.position[2]]
+    return (float(below[:, 2].max()) if len(below) else None), (float(above[:, 2].min()) if len(above) else None)
+
+
 def push_yaw(view: SimView, entity: str, press: np.ndarray, direction: np.ndarray, z: float) -> float:
     """Grasp yaw for pushing `entity` in `direction` with the fingertips at `press`: the hand's long side
     across the push (two fingers wide), unless it lies along the push clearer of the neighbours (the

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rot_z, rotation_error
-from base_suites.experts.geometry import Grasp, carry_height, choose_grasp, fill_boxes, narrowest_pinch, push_yaw, shape_of, slide_path
-from base_suites.sim_view import SimView
+from base_suites.experts.geometry import Grasp, carry_height, choose_grasp, fill_boxes, floor_and_roof, narrowest_pinch, push_yaw, shape_of, slide_path
+from base_suites.sim_view import GRIPPER, ROBOT, SimView
 
 Actions = Generator[np.ndarray, None, bool]
 
@@ -203,6 +203,11 @@ def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
     return grasp_rotation(yaw, axis, angle)
 
 
+def _set_down(view: SimView, obj: str) -> bool:
+    """Whether the held `obj` touches anything but the robot: it has reached what it is set down on."""
+    return any(c.involves(obj) and c.other(obj) not in (GRIPPER, ROBOT) for c in view.contacts())
+
+
 def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = False) -> Actions:
     """Carry the held `obj` above `target` (a region, an entity or an xy point) and set it down on contact.
     `shared`: other goal objects go to the same region (see `_free_spot`)."""
@@ -248,8 +253,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     for _ in range(150):
         xy_error = goal_xy - view.position(obj)[:2]
         aligned = np.linalg.norm(xy_error) < 0.015
-        touching = [c.other(obj) for c in view.contacts() if c.involves(obj)]
-        if any(e not in ("gripper", "robot") for e in touching) and np.linalg.norm(xy_error) < 0.03:
+        if _set_down(view, obj) and np.linalg.norm(xy_error) < 0.03:
             break
         high = view.eef_position()[2] - slow_below
         down = -(high + 0.02) if high > 0 else -0.02
@@ -290,23 +294,10 @@ def insert(ctx: SkillContext, obj: str, target: str, facing: np.ndarray, front: 
     yield from ctx.goto(_above(outside, carry), rot, CLOSE, tol=0.02, rot_tol=0.1, max_steps=120)
     yield from ctx.goto(outside, rot, CLOSE, tol=0.01, max_steps=60)
     yield from ctx.goto(inside, rot, CLOSE, tol=0.004, max_steps=80, speed=0.35)
-    touching = lambda: any(c.involves(obj) and c.other(obj) not in ("gripper", "robot") for c in view.contacts())  # noqa: E731
-    yield from ctx.goto(inside - [0.0, 0.0, SILL_CLEARANCE + 0.01], rot, CLOSE, tol=0.006, max_steps=30, speed=0.35, until=touching)
+    yield from ctx.goto(inside - [0.0, 0.0, SILL_CLEARANCE + 0.01], rot, CLOSE, tol=0.006, max_steps=30, speed=0.35, until=lambda: _set_down(view, obj))
     yield from ctx.release(rot)
     yield from ctx.goto(view.eef_position() + np.array([*(facing[:2] * 0.06), 0.0]), rot, OPEN, tol=0.02, max_steps=30)
     return True
-
-
-def floor_and_roof(view: SimView, target: str) -> tuple[float | None, float | None]:
-    """Heights of what the region's fixture has right under and right over the region (None where it
-    has nothing: a stove's burner region has no roof)."""
-    region = view.region(target)
-    axes, half = region.footprint()
-    pts = view.geom_points(region.parent)
-    local = np.abs((pts[:, :2] - region.position[:2]) @ axes)
-    over = pts[np.all(local <= half, axis=1)] if half is not None else pts
-    below, above = over[over[:, 2] < region.position[2]], over[over[:, 2] > region.position[2]]
-    return (float(below[:, 2].max()) if len(below) else None), (float(above[:, 2].min()) if len(above) else None)
 
 
 def knock(ctx: SkillContext, victim: str) -> Actions:
@@ -345,7 +336,7 @@ def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015, max
     the dish's floor just short of its leading rim: the floor drags it and the rim's gently sloped inner
     wall takes the push where the floor slips. Pressed beyond its foot, out on the rim, a plate tips
     up about the foot's edge and rides over the fingers. Coming down from above keeps the hand clear of
-    the tall fixtures that often stand behind such objects; the hand's long side lies across the push."""
+    the tall fixtures that often stand behind such objects; the hand's yaw is `push_yaw`'s."""
     view = ctx.view
     shape = shape_of(view, obj)
     press_z = shape.bottom + 0.004
@@ -360,9 +351,10 @@ def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015, max
             break
         ahead = _lookahead(path, obj_xy, LOOKAHEAD)
         direction = (ahead - obj_xy) / max(np.linalg.norm(ahead - obj_xy), 1e-6)
+        reach = _press_reach(footprint, direction)
         if rot is None:  # one hand orientation for the whole push: turning it costs more than any gain
-            rot = hand_down(view, push_yaw(view, obj, obj_xy + direction * _press_reach(footprint, direction), direction, press_z), at=obj_xy)
-        press = obj_xy + direction * (_press_reach(footprint, direction) - _fingertip_reach(rot, direction))
+            rot = hand_down(view, push_yaw(view, obj, obj_xy + direction * reach, direction, press_z), at=obj_xy)
+        press = obj_xy + direction * (reach - _fingertip_reach(rot, direction))
         eef = view.eef_position()
         if not pressing or eef[2] > shape.top + 0.01 or np.linalg.norm(eef[:2] - press) > RECONTACT:
             if eef[2] < hover - 0.01:
@@ -397,15 +389,10 @@ def _fingertip_reach(rot: np.ndarray, direction: np.ndarray) -> float:
 def _lookahead(path: list[np.ndarray], point: np.ndarray, distance: float) -> np.ndarray:
     """The point `distance` further along the polyline `path` than the path's point nearest `point`."""
     legs = list(zip(path, path[1:]))
-    nearest = []
-    for a, b in legs:
-        t = float(np.clip((point - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0))
-        nearest.append(np.linalg.norm(a + t * (b - a) - point))
-    leg = int(np.argmin(nearest))
-    a, b = legs[leg]
-    t = float(np.clip((point - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0))
-    left, here = distance, a + t * (b - a)
-    for a, b in legs[leg:]:
+    feet = [a + float(np.clip((point - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0)) * (b - a) for a, b in legs]
+    leg = int(np.argmin([np.linalg.norm(foot - point) for foot in feet]))
+    left, here = distance, feet[leg]
+    for _, b in legs[leg:]:
         span = float(np.linalg.norm(b - here))
         if span >= left:
             return here + (b - here) * (left / max(span, 1e-12))
