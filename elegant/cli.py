@@ -186,6 +186,8 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)")
     p.add_argument("--modes", type=int, help="components of the GMM action head (default 16)")
     p.add_argument("--successful-only", action="store_true", help="train on the demos whose episode succeeded (as LIBERO's datasets hold)")
+    p.add_argument("--no-task-film", dest="task_film", action="store_false",
+                   help="feed the task one-hot at the input only (policies before FiLM task conditioning)")
     p.add_argument("--resume", action="store_true")
 
 
@@ -195,7 +197,8 @@ def _train_policy(args: argparse.Namespace) -> dict:
 
     summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
                            batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk,
-                           successful_only=args.successful_only, **({} if args.modes is None else {"modes": args.modes}))
+                           successful_only=args.successful_only, task_film=args.task_film,
+                           **({} if args.modes is None else {"modes": args.modes}))
     summary.pop("loss_history", None)
     return summary
 

@@ -266,6 +266,40 @@ def test_a_policy_saved_before_chunking_loads_as_one_action_per_decision(policy_
     assert policy.plan({"state": np.zeros(5)}).shape == (1, 7)
 
 
+def test_task_film_starts_as_the_plain_mlp_and_conditions_every_layer_on_the_task():
+    from elegant.policies.bc_model import BCNet
+
+    torch.manual_seed(0)
+    film, plain = BCNet(12, hidden=(16, 16), modes=2, task_dim=2), BCNet(12, hidden=(16, 16), modes=2)
+    plain.load_state_dict({k: v for k, v in film.state_dict().items() if not k.startswith("film.")})
+    x = torch.randn(5, 12)
+    assert all(torch.equal(a, b) for a, b in zip(film(x), plain(x)))
+    with torch.no_grad():  # the one-hot's input weights zeroed: only FiLM can still tell the tasks apart
+        for net in (film, plain):
+            net.trunk[0].weight[:, -2:] = 0.0
+        for layer in film.film:
+            layer.weight.normal_()
+    first, second = x.clone(), x.clone()
+    first[:, -2:], second[:, -2:] = torch.tensor([1.0, 0.0]), torch.tensor([0.0, 1.0])
+    assert torch.equal(plain(first)[1], plain(second)[1])
+    assert not torch.allclose(film(first)[1], film(second)[1])
+
+
+def test_policies_record_their_task_conditioning_and_older_ones_load_without_it(policy_dir, tmp_path):
+    assert json.load(open(os.path.join(policy_dir, "config.json")))["model"]["task_dim"] == len(LAYOUTS)
+    assert load_policy(policy_dir).net.film is not None
+    out = tmp_path / "plain"
+    train_policy([write_demos(tmp_path / 'd.hdf5', demos_per_task=2, steps=5)], str(out), epochs=1, task_film=False, **SMALL)
+    config = json.load(open(out / "config.json"))
+    assert config["model"]["task_dim"] == 0
+    del config["model"]["task_dim"]  # as written before FiLM existed
+    (out / "config.json").write_text(json.dumps(config))
+    policy = load_policy(str(out))
+    assert policy.net.film is None
+    policy.reset(metadata("libero_object/1"))
+    assert policy({"state": np.zeros(5)}).shape == (7,)
+
+
 def test_successful_only_clones_the_successes_and_a_resume_must_agree(tmp_path):
     path = write_demos(tmp_path / "mixed.hdf5", demos_per_task=4, failures=1, steps=10)
     assert len(load_demos([path]).episodes) == 8

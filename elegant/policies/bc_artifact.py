@@ -62,7 +62,9 @@ def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
         features = BCFeatures.from_dict(config["features"])
         spec = config["model"]
         spec.setdefault("chunk", 1)  # policies written before action chunking decide one action at a time
-        net = BCNet(spec["input_dim"], hidden=spec["hidden"], action_dim=spec["action_dim"], modes=spec["modes"], min_std=spec["min_std"])
+        spec.setdefault("task_dim", 0)  # ... and before FiLM task conditioning read the task at the input only
+        net = BCNet(spec["input_dim"], hidden=spec["hidden"], action_dim=spec["action_dim"], modes=spec["modes"], min_std=spec["min_std"],
+                    task_dim=spec["task_dim"])
         net.load_state_dict(torch.load(io.BytesIO(payload), weights_only=True))
     except KeyError as exc:
         raise UserInputError(f"{config_path}: missing field {exc.args[0]!r}") from None

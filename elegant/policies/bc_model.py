@@ -60,10 +60,17 @@ def gmm_sample(logits: torch.Tensor, means: torch.Tensor, stds: torch.Tensor, n:
 
 
 class BCNet(nn.Module):
-    """MLP trunk (ReLU) over the flattened history window plus task one-hot, then the GMM head."""
+    """MLP trunk (ReLU) over the flattened history window plus task one-hot, then the GMM head.
+
+    With `task_dim` > 0 the last `task_dim` inputs (the task one-hot) also modulate every hidden layer
+    (FiLM: h * (1 + gamma(task)) + beta(task), before the ReLU), as LIBERO's baselines condition on the
+    instruction. In libero_goal all ten tasks share one scene, so the one-hot is the only input that says
+    which task to do; entering at the input alone, it is 10 of ~800 numbers and the policy mixes tasks up.
+    The FiLM layers start at zero, so training starts from the plain MLP."""
 
     def __init__(
-        self, input_dim: int, *, hidden: Sequence[int] = (256, 256), action_dim: int = ACTION_DIM, modes: int = DEFAULT_MODES, min_std: float = 1e-4
+        self, input_dim: int, *, hidden: Sequence[int] = (256, 256), action_dim: int = ACTION_DIM, modes: int = DEFAULT_MODES,
+        min_std: float = 1e-4, task_dim: int = 0,
     ) -> None:
         super().__init__()
         layers: list[nn.Module] = []
@@ -72,10 +79,22 @@ class BCNet(nn.Module):
             layers += [nn.Linear(width, size), nn.ReLU()]
             width = size
         self.trunk = nn.Sequential(*layers)
+        self.task_dim = int(task_dim)
+        self.film = nn.ModuleList(nn.Linear(self.task_dim, 2 * size) for size in hidden) if self.task_dim else None
+        if self.film is not None:
+            for layer in self.film:
+                nn.init.zeros_(layer.weight)
+                nn.init.zeros_(layer.bias)
         self.head = GMMHead(width, action_dim=action_dim, modes=modes, min_std=min_std)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        return self.head(self.trunk(x))
+        if self.film is None:
+            return self.head(self.trunk(x))
+        task, h = x[..., -self.task_dim:], x
+        for linear, film in zip(self.trunk[0::2], self.film):
+            gamma, beta = film(task).chunk(2, dim=-1)
+            h = torch.relu(linear(h) * (1.0 + gamma) + beta)
+        return self.head(h)
 
     def nll(self, x: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         return gmm_nll(*self(x), actions)

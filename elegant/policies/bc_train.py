@@ -55,6 +55,7 @@ class BCConfig:
     obs_min_std: float = 1e-2
     grad_clip: float = 100.0
     chunk: int = 1
+    task_film: bool = True
 
     def validate(self) -> None:
         positive = {"epochs": self.epochs, "history": self.history, "batch_size": self.batch_size, "modes": self.modes, "chunk": self.chunk}
@@ -186,6 +187,7 @@ def train_policy(
     obs_min_std: float = 1e-2,
     grad_clip: float = 100.0,
     chunk: int = 1,
+    task_film: bool = True,
     progress: bool = True,
     on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
     tasks: Sequence[str] | None = None,
@@ -210,9 +212,10 @@ def train_policy(
     `features`); `snapshot_epochs` also publishes the policy as of these epochs (0: before training) in
     `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
     resumed checkpoint must match. `successful_only`: train on the successful demos only (see
-    `load_demos`); the data a checkpoint records then counts only those.
+    `load_demos`); the data a checkpoint records then counts only those. `task_film`: the task one-hot
+    also modulates every hidden layer (see `BCNet`); off, it enters at the input only.
     """
-    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip, chunk)
+    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip, chunk, task_film)
     cfg.validate()
     snapshots = set(snapshot_epochs)
     if any(int(e) != e or not 0 <= e <= cfg.epochs for e in snapshots):
@@ -233,11 +236,12 @@ def train_policy(
     features = _input_features(data, cfg, features, init, init_from)
     windows = _Windows(data, features, cfg.chunk)
     model_spec = {"input_dim": features.input_dim, "hidden": list(cfg.hidden), "action_dim": ACTION_DIM * cfg.chunk, "modes": cfg.modes,
-                  "min_std": cfg.min_std, "chunk": cfg.chunk}
+                  "min_std": cfg.min_std, "chunk": cfg.chunk, "task_dim": len(features.encoder.tasks) if cfg.task_film else 0}
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
-        net = BCNet(features.input_dim, hidden=cfg.hidden, action_dim=ACTION_DIM * cfg.chunk, modes=cfg.modes, min_std=cfg.min_std)
+        net = BCNet(features.input_dim, hidden=cfg.hidden, action_dim=ACTION_DIM * cfg.chunk, modes=cfg.modes, min_std=cfg.min_std,
+                    task_dim=model_spec["task_dim"])
     if init is not None:
         _start_from(net, init, model_spec, init_from)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
