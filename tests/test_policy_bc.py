@@ -84,7 +84,7 @@ def fit_error(policy: BCPolicy, seed: int = 99) -> tuple[float, float]:
 
 def test_training_fits_the_expert_far_better_than_initialisation(demos, tmp_path):
     trained = train_policy([demos], str(tmp_path / "bc"), epochs=40, lr=1e-2, seed=0, **SMALL)
-    untrained = train_policy([demos], str(tmp_path / "init"), epochs=1, lr=0.0, seed=0, **SMALL)
+    train_policy([demos], str(tmp_path / "init"), epochs=1, lr=0.0, seed=0, **SMALL)
     assert trained["tasks"] == sorted(LAYOUTS) and trained["num_samples"] == 2 * 5 * 30
     assert trained["loss_history"][-1] < trained["loss_history"][0] - 3.0
     (arm_before, gripper_before), (arm_after, gripper_after) = (fit_error(load_policy(str(tmp_path / d))) for d in ("init", "bc"))
