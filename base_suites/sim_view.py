@@ -228,6 +228,13 @@ class SimView:
         ranges = model.object_properties["articulation"]
         return 1.0 if np.mean(ranges["default_open_ranges"]) > np.mean(ranges["default_close_ranges"]) else -1.0
 
+    def open_position(self, entity: str) -> float:
+        """The joint position at which LIBERO starts calling an articulated fixture or object open (the
+        edge of its open range nearest the closed one)."""
+        model = {**self._domain.objects_dict, **self._domain.fixtures_dict}[entity]
+        bounds = model.object_properties["articulation"]["default_open_ranges"]
+        return float(min(bounds) if self.opening_sign(entity) > 0 else max(bounds))
+
     def joint_type(self, name: str) -> str:
         """'free', 'ball', 'slide' or 'hinge'."""
         return ("free", "ball", "slide", "hinge")[int(self._model.jnt_type[self._model.joint(name).id])]

@@ -9,7 +9,7 @@ from base_suites import make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
 from base_suites.experts.control import finger_axis
 from base_suites.experts import skills
-from base_suites.experts.geometry import REACH_LIMIT, YAWS, _rim_grasps, choose_grasp, shape_of, slide_path
+from base_suites.experts.geometry import REACH_LIMIT, YAWS, _rim_grasps, choose_grasp, headroom, shape_of, slide_path, way_out
 from base_suites.experts.skills import SkillContext
 from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
@@ -38,6 +38,7 @@ def _solve(suite, task, init=0, quality="clean", episode=0, reset_seed=None):
     ("libero_spatial", 0, "pick and place (rim grasp of a bowl)"),
     ("libero_spatial", 4, "pick from an open drawer, carry over the cabinet"),
     ("libero_goal", 9, "set down on a tilted shelf (the wine rack)"),
+    ("libero_goal", 3, "open a drawer, pick from under it and carry out sideways, place into it"),
 ])
 def test_expert_solves_one_task_per_primitive_family(suite, task, family):
     success, _, verdict = _solve(suite, task)
@@ -91,14 +92,16 @@ def test_a_mug_goes_into_the_microwave_through_its_doorway():
     assert not {"collision", "sequence"} & set(verdict["violated"]), verdict["events"][:3]
 
 
-def test_an_object_under_the_opened_drawer_is_moved_clear_first():
-    """libero_goal/3: the bowl stands where the top drawer will stick out; picking it from under the
-    open drawer is impossible top-down, so the plan moves it out of the drawer's way before opening."""
+def test_an_object_the_opened_drawer_would_hang_over_is_moved_clear_only_if_no_grasp_stays_reachable():
+    """libero_goal/3: the bowl stands where the top drawer will hang over it. At init 0 enough of its rim
+    will stick out for a rim grasp, so the plan opens the drawer first; at init 20 every grasp would
+    bring the hand into the opened drawer, so the bowl is first moved clear of it."""
     env = make_env("libero_goal", 3, seed=0)
-    env.reset(options={"init_state": 0})
     view, drawer, bowl = env.sim, "wooden_cabinet_1_top_region", "akita_black_bowl_1"
-    plan = [pred for pred, _ in plan_skills(env.task.goal, view)]
-    assert plan == [("clear", bowl, drawer), ("open", drawer), ("in", bowl, drawer)]
+    env.reset(options={"init_state": 0})
+    assert [pred for pred, _ in plan_skills(env.task.goal, view)] == [("open", drawer), ("in", bowl, drawer)]
+    env.reset(options={"init_state": 20})
+    assert [pred for pred, _ in plan_skills(env.task.goal, view)] == [("clear", bowl, drawer), ("open", drawer), ("in", bowl, drawer)]
     lo, hi = articulated.opened_footprint(view, drawer)
     spot = articulated.clear_spot(view, drawer, bowl)
     moved = view.geom_points(bowl)[:, :2] - view.position(bowl)[:2] + spot
@@ -109,6 +112,33 @@ def test_an_object_under_the_opened_drawer_is_moved_clear_first():
     assert all(pred[0] != "clear" for pred, _ in plan_skills(env0.task.goal, env0.sim))
     env.close()
     env0.close()
+
+
+def test_an_object_lifted_under_the_opened_drawer_has_a_way_out_sideways():
+    """With the drawer open over it, the bowl may rise only to just under the drawer's bottom; shifted
+    by `way_out`, nothing hangs over it any more and it can rise to any carrying height."""
+    env = make_env("libero_goal", 3, seed=0)
+    env.reset(options={"init_state": 0})
+    view, bowl, domain = env.sim, "akita_black_bowl_1", env.domain
+    assert headroom(view, bowl, 0.0) == np.inf  # nothing over it while the drawer is shut
+    cabinet_joint = domain.object_sites_dict["wooden_cabinet_1_top_region"].joints[0]
+    domain.sim.data.set_joint_qpos(cabinet_joint, view.open_position("wooden_cabinet_1") - 0.01)
+    bowl_joint = domain.get_object(bowl).joints[0]
+
+    def move_bowl(shift):
+        pose = domain.sim.data.get_joint_qpos(bowl_joint).copy()
+        pose[:3] += shift
+        domain.sim.data.set_joint_qpos(bowl_joint, pose)
+        domain.sim.forward()
+
+    move_bowl([0.0, 0.0, 0.05])
+    room = headroom(view, bowl, 0.0)
+    assert 0.0 < room < 0.06  # the drawer's bottom is ~10 cm above the bowl's rim on the table
+    shift = way_out(view, bowl, 0.0)
+    assert shift is not None and 0.0 < np.linalg.norm(shift) <= 0.10
+    move_bowl([*shift, 0.0])
+    assert headroom(view, bowl, 0.0) == np.inf
+    env.close()
 
 
 def _run_skill(env, skill, max_steps: int = 400) -> tuple[bool, set[str]]:

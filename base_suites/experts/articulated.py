@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
-from base_suites.experts.geometry import floor_and_roof
+from base_suites.experts.geometry import choose_grasp, fill_boxes, floor_and_roof
 from base_suites.experts.skills import Actions, SkillContext, hand_down
 from base_suites.sim_view import SimView
 
@@ -71,14 +71,38 @@ def opened_footprint(view: SimView, target: str) -> tuple[np.ndarray, np.ndarray
     return pts.min(axis=0), pts.max(axis=0)
 
 
-def under_opened(view: SimView, target: str, obj: str, margin: float = 0.03) -> bool:
-    """Would `obj` stand under the drawer once it is open? Then the hand cannot reach it from above."""
-    box = opened_footprint(view, target)
-    if box is None:
+# m a drawer's pull overshoots where LIBERO starts calling it open: the pull stops once it does
+PULL_OVERSHOOT = 0.01
+# The hand may come down this far (m) into what is around a grasp (a rim grasp next to a drawer): a
+# bowl whose every grasp under an opened drawer brings the hand closer is moved clear before opening.
+REACH_TOLERANCE = 0.012
+
+
+def opened_points(view: SimView, target: str) -> np.ndarray | None:
+    """Points through a drawer's volume where the pull will leave it: just past where LIBERO calls it
+    open (None for doors and knobs)."""
+    joint = view.articulation_joints(target)[0]
+    if not _is_slide(view, joint):
+        return None
+    info = view.joint(joint)
+    _, opening, _ = _slide(view, target)
+    entity = _fixture(view, target)
+    travel = abs(view.open_position(entity) - info["qpos"]) + PULL_OVERSHOOT
+    return fill_boxes(view.geom_points(entity, body=info["body"]).reshape(-1, 8, 3)) + opening * travel
+
+
+def under_opened(view: SimView, target: str, obj: str) -> bool:
+    """Would the opened drawer hang over `obj` so that no top-down grasp reaches it any more? Picked by
+    what still sticks out (a bowl's rim) it is lifted and carried out sideways (`skills.pick`);
+    otherwise it must be moved clear before the drawer is opened. Only the drawer counts: an object
+    that its neighbours already crowd is not moved for them."""
+    drawer = opened_points(view, target)
+    if drawer is None:
         return False
-    pts = view.geom_points(obj)[:, :2]
-    lo, hi = box[0] - margin, box[1] + margin
-    return bool(np.all(pts.max(axis=0) >= lo) and np.all(pts.min(axis=0) <= hi))
+    before, after = choose_grasp(view, obj), choose_grasp(view, obj, also_avoid=drawer)
+    if before is None or after is None:
+        return before is not None
+    return after.clearance < min(-REACH_TOLERANCE, before.clearance)
 
 
 def clear_spot(view: SimView, target: str, obj: str, margin: float = 0.04) -> np.ndarray:

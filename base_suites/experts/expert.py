@@ -18,7 +18,7 @@ from base_suites.experts.control import OPEN
 from base_suites.experts.geometry import handle_pinch
 from base_suites.experts.skills import SkillContext
 
-EXPERT_VERSION = "scripted-6"
+EXPERT_VERSION = "scripted-7"
 KNOBS = ("collide", "drop", "misplace", "tilt", "wrong_order", "jerky", "regrasp")
 # "mixed": every knob possible, most episodes still clean in all but one or two respects.
 MIXED_RATES = {"collide": 0.2, "drop": 0.2, "misplace": 0.15, "tilt": 0.2, "wrong_order": 0.15, "jerky": 0.15, "regrasp": 0.15}
@@ -67,8 +67,10 @@ Skill = Callable[[SkillContext], skills.Actions]
 def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str, ...], Skill]]:
     """Order the goal's predicates into (predicate, skill) steps: switch on first, open containers
     before filling them, close containers after filling them. Opening a container for an `in` goal is
-    a step of its own, keyed by the predicate it makes true; an object that would stand under the opened
-    drawer is first moved clear of it (step ("clear", object, drawer))."""
+    a step of its own, keyed by the predicate it makes true. An object the opened drawer would hang over
+    is picked from under it afterwards if some grasp still reaches it (a bowl's rim sticking out: two
+    fewer carries, ~100 steps, in a 300-step horizon), else first moved clear (step ("clear", object,
+    drawer))."""
     steps: list[tuple[int, tuple[str, ...], Skill]] = []
     opened_for = set()
     targets = [p[2] for p in goal if p[0] in ("on", "in")]

@@ -72,23 +72,31 @@ def _extent(points: np.ndarray, direction: np.ndarray) -> float:
 
 def _hand_clearance(centre: np.ndarray, yaw: float, z: float, obstacles: np.ndarray) -> float:
     """Smallest xy distance from obstacle points (above the fingertips) to the hand's footprint."""
-    if len(obstacles) == 0:
-        return 1.0
-    relevant = obstacles[obstacles[:, 2] > z - 0.01]
+    relevant = obstacles[obstacles[:, 2] > z - 0.01] if len(obstacles) else obstacles
     if len(relevant) == 0:
         return 1.0
+    return float(np.min(_hand_footprint_distance(centre, yaw, relevant)))
+
+
+def _hand_footprint_distance(centre: np.ndarray, yaw: float, points: np.ndarray) -> np.ndarray:
+    """Signed xy distance of each point from the hand's footprint around `centre` (negative inside)."""
     along = finger_axis(yaw)[:2]
     across = np.array([-along[1], along[0]])
-    rel = relevant[:, :2] - centre[:2]
+    rel = points[:, :2] - centre[:2]
     a = np.abs(rel @ along) - HAND_HALF_LENGTH
     c = np.abs(rel @ across) - HAND_HALF_WIDTH
     outside = np.sqrt(np.clip(a, 0, None) ** 2 + np.clip(c, 0, None) ** 2)
     inside = np.minimum(np.maximum(a, c), 0)
-    return float(np.min(np.where((a > 0) | (c > 0), outside, inside)))
+    return np.where((a > 0) | (c > 0), outside, inside)
 
 
-def _obstacle_points(view: SimView, entity: str) -> np.ndarray:
+def _obstacle_points(view: SimView, entity: str, filled: bool = False) -> np.ndarray:
+    """Collision-box corners of everything but `entity` and the robot; `filled`: points through their
+    volumes, for checks against large boxes (an object under a drawer's bottom panel is near none of
+    its corners)."""
     others = [view.geom_points(e) for e in view.objects + view.fixtures if e != entity]
+    if filled:
+        others = [fill_boxes(p.reshape(-1, 8, 3)) for p in others]
     return np.concatenate(others) if others else np.zeros((0, 3))
 
 
@@ -174,15 +182,19 @@ def _rim_grasps(view: SimView, entity: str, yaw: float) -> list[Grasp]:
     return grasps
 
 
-def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destination: np.ndarray | None = None) -> Grasp | None:
+def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destination: np.ndarray | None = None,
+                 also_avoid: np.ndarray | None = None) -> Grasp | None:
     """The clearest feasible top-down grasp of an object (pinch across a narrow side, a slender part,
     or the rim of an open object); None if none fits (flat plates are pushed instead). With the xy
     `destination` the object is to be carried to, a rim grasp that would put the hand beyond the arm's
-    comfortable reach there is avoided: at full stretch the elbow locks straight and OSC stalls."""
+    comfortable reach there is avoided: at full stretch the elbow locks straight and OSC stalls.
+    `also_avoid`: points of something not yet where it will be (a drawer once pulled open)."""
     points = view.geom_points(entity)
     parts = points.reshape(-1, 8, 3)
     shape = Shape(points.min(axis=0), points.max(axis=0))
     obstacles = _obstacle_points(view, entity)
+    if also_avoid is not None:
+        obstacles = np.concatenate([obstacles, also_avoid])
     centre = shape.centre
     pinch_z = _pinch_height(shape)
     pinches, rims = [], []
@@ -303,8 +315,7 @@ def slide_path(view: SimView, entity: str, goal_xy: np.ndarray) -> list[np.ndarr
     start, goal = view.position(entity)[:2], np.asarray(goal_xy, dtype=float)[:2]
     radius = float(np.max(np.linalg.norm(view.geom_points(entity)[:, :2] - start, axis=1)))
     shape = shape_of(view, entity)
-    others = [fill_boxes(view.geom_points(e).reshape(-1, 8, 3)) for e in view.objects + view.fixtures if e != entity]
-    points = np.concatenate(others) if others else np.zeros((0, 3))
+    points = _obstacle_points(view, entity, filled=True)
     points = points[(points[:, 2] > view.table_height + 0.003) & (points[:, 2] < shape.top + 0.01)][:, :2]
     if len(points) == 0:
         return [goal]
@@ -351,3 +362,99 @@ def _leg_clearance(tree, a: np.ndarray, b: np.ndarray) -> float:
     """Smallest distance from the straight leg a -> b (sampled every grid cell) to an obstacle point."""
     n = max(2, int(np.ceil(np.linalg.norm(b - a) / SLIDE_GRID)) + 1)
     return float(tree.query(np.linspace(a, b, n))[0].min())
+
+
+# A held object under an overhang (a bowl standing where an opened drawer now hangs over it, picked by
+# the part of its rim that sticks out) can rise only so far, and must be carried out sideways first.
+HOUSING_ABOVE_GRIP = 0.045  # m from the grip point up to the hand housing's lower face: the fingers' length
+OVERHANG_GAP = 0.015  # m a held object and the hand keep from what hangs over them on the way out
+WAY_OUT_STEP, WAY_OUT_REACH = 0.01, 0.20  # m: the shifts tried, every 16th of a turn
+WAY_OUT_DIRECTIONS = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)])
+
+
+def _around_held(view: SimView, held: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The held object's filled footprint (xy); the filled points, above its top, of whatever hangs over
+    it (an entity with a part above its top and over its footprint: an opened drawer, not a tall
+    neighbour beside it); and the points of everything else within its height band, near enough to be
+    swept through on a way out."""
+    own = fill_boxes(view.geom_points(held).reshape(-1, 8, 3))
+    bottom, top = own[:, 2].min(), own[:, 2].max()
+    footprint = own[:, :2]
+    inside = _inside(footprint)
+    reach = WAY_OUT_REACH + HAND_HALF_LENGTH
+    near_lo, near_hi = footprint.min(axis=0) - reach, footprint.max(axis=0) + reach
+    over, band = [np.zeros((0, 3))], [np.zeros((0, 3))]
+    for entity in view.objects + view.fixtures:
+        corners = view.geom_points(entity)
+        boxes = corners.reshape(-1, 8, 3)
+        boxes = boxes[np.all((boxes.max(axis=1)[:, :2] >= near_lo) & (boxes.min(axis=1)[:, :2] <= near_hi), axis=1)]
+        if entity == held or not len(boxes) or boxes[..., 2].max() <= bottom:
+            continue
+        points = fill_boxes(boxes)
+        points = points[np.all((points[:, :2] >= near_lo) & (points[:, :2] <= near_hi), axis=1)]
+        above = points[points[:, 2] > top]
+        if inside(above[:, :2]).any():
+            over.append(above)
+        band.append(points[(points[:, 2] > bottom) & (points[:, 2] <= top)])
+    return footprint, np.concatenate(over), np.concatenate(band)
+
+
+def _inside(footprint: np.ndarray):
+    """A test of which xy points lie within the convex hull of a footprint."""
+    from scipy.spatial import ConvexHull, Delaunay
+
+    hull = Delaunay(footprint[ConvexHull(footprint).vertices])
+    return lambda points: hull.find_simplex(points) >= 0 if len(points) else np.zeros(0, dtype=bool)
+
+
+def _hand_overhead(grip: np.ndarray, yaw: float, points: np.ndarray) -> np.ndarray:
+    """Points the hand housing would run into rising from `grip` (above it, over its footprint)."""
+    above = points[points[:, 2] > grip[2] + HOUSING_ABOVE_GRIP]
+    return above[_hand_footprint_distance(grip, yaw, above) < 0]
+
+
+def headroom(view: SimView, held: str, yaw: float) -> float:
+    """How far the held object, and the hand holding it with grasp yaw `yaw`, can rise before touching
+    what hangs over them (inf with nothing over them)."""
+    footprint, over, _ = _around_held(view, held)
+    top, grip = view.geom_points(held)[:, 2].max(), view.eef_position()
+    rooms = [np.inf]
+    above_object = over[_inside(footprint)(over[:, :2])]
+    if len(above_object):
+        rooms.append(float(above_object[:, 2].min() - top))
+    above_hand = _hand_overhead(grip, yaw, over)
+    if len(above_hand):
+        rooms.append(float(above_hand[:, 2].min() - grip[2] - HOUSING_ABOVE_GRIP))
+    return min(rooms)
+
+
+def way_out(view: SimView, held: str, yaw: float) -> np.ndarray | None:
+    """The shortest horizontal shift (xy) after which nothing hangs over the held object or the hand
+    holding it, within `OVERHANG_GAP`, and that the object makes without sweeping through anything at
+    its height; None if there is none within `WAY_OUT_REACH`."""
+    from scipy.spatial import cKDTree
+
+    footprint, over, band = _around_held(view, held)
+    grip = view.eef_position()
+    overhead = np.concatenate([over, band])
+    if len(overhead) == 0:
+        return np.zeros(2)
+    overhead_tree, band_tree = cKDTree(overhead[:, :2]), cKDTree(band[:, :2]) if len(band) else None
+    hand_points = over[over[:, 2] > grip[2] + HOUSING_ABOVE_GRIP]
+
+    def clear(shift: np.ndarray) -> bool:
+        moved = footprint + shift
+        if overhead_tree.query(moved)[0].min() <= OVERHANG_GAP or _inside(moved)(overhead[:, :2]).any():
+            return False
+        return len(hand_points) == 0 or _hand_footprint_distance(grip[:2] + shift, yaw, hand_points).min() > OVERHANG_GAP
+
+    def swept_clear(shift: np.ndarray) -> bool:
+        steps = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(shift) / WAY_OUT_STEP) + 1))
+        return band_tree is None or all(band_tree.query(footprint + s * shift)[0].min() > 0.0 for s in steps)
+
+    for distance in np.arange(WAY_OUT_STEP, WAY_OUT_REACH + 1e-9, WAY_OUT_STEP):
+        for direction in WAY_OUT_DIRECTIONS:
+            shift = distance * direction
+            if clear(shift) and swept_clear(shift):
+                return shift
+    return None

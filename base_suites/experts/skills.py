@@ -12,12 +12,27 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rot_z, rotation_error
-from base_suites.experts.geometry import Grasp, carry_height, choose_grasp, fill_boxes, floor_and_roof, narrowest_pinch, push_yaw, shape_of, slide_path
+from base_suites.experts.geometry import (
+    OVERHANG_GAP,
+    Grasp,
+    carry_height,
+    choose_grasp,
+    fill_boxes,
+    floor_and_roof,
+    headroom,
+    narrowest_pinch,
+    push_yaw,
+    shape_of,
+    slide_path,
+    way_out,
+)
 from base_suites.sim_view import GRIPPER, ROBOT, SimView
 
 Actions = Generator[np.ndarray, None, bool]
 
 
+LIFT = 0.10  # m a grasped object is lifted before it is carried off ...
+MIN_LIFT = 0.01  # ... or, under an overhang, at least this far: clear of the table to be carried out sideways
 RELEASE_CLEARANCE = 0.02  # m the fingers open beyond the held width before the hand moves off
 
 
@@ -101,13 +116,26 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray
         yield from ctx.goto(target + np.array([0, 0, 0.03]), rot, OPEN, tol=0.012, max_steps=60)
         yield from ctx.goto(target, rot, OPEN, tol=0.006, max_steps=40, speed=0.5)
         yield from ctx.hold(CLOSE, 12, rot)
-        lift = _above(target, grasp.position[2] + 0.10)
-        yield from ctx.goto(lift, rot, CLOSE, tol=0.02, max_steps=40)
+        rise = float(np.clip(headroom(view, obj, grasp.yaw) - OVERHANG_GAP, MIN_LIFT, LIFT))
+        yield from ctx.goto(_above(target, grasp.position[2] + rise), rot, CLOSE, tol=0.02, max_steps=40)
         if view.held_object() == obj:
+            if np.isfinite(headroom(view, obj, grasp.yaw)):
+                yield from _out_from_under(ctx, obj, grasp.yaw, rot)
             return True
         yield from ctx.hold(OPEN, 6, rot)
         ctx.events.append(f"pick:retry{attempt + 1}")
     return False
+
+
+def _out_from_under(ctx: SkillContext, obj: str, yaw: float, rot: np.ndarray) -> Actions:
+    """Carry the held `obj` sideways, at the height it was lifted to, until nothing hangs over it or
+    the hand: rising straight up from under an opened drawer jams it against the drawer's bottom."""
+    shift = way_out(ctx.view, obj, yaw)
+    if shift is None:
+        ctx.events.append("pick:trapped")
+        return False
+    destination = ctx.view.eef_position() + np.array([*shift, 0.0])
+    return (yield from ctx.goto(destination, rot, CLOSE, tol=0.01, max_steps=40, speed=0.6))
 
 
 def target_xy(view: SimView, target: str | np.ndarray, held: str | None = None, shared: bool = False) -> np.ndarray:
