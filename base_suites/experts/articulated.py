@@ -7,6 +7,8 @@ are grasped by their grip bar and turned by rotating the wrist about the knob's 
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
@@ -58,17 +60,21 @@ def _slide(view: SimView, target: str) -> tuple[str, np.ndarray, np.ndarray]:
     return joint, opening, handle
 
 
-def opened_footprint(view: SimView, target: str) -> tuple[np.ndarray, np.ndarray] | None:
-    """The xy box a drawer covers when pulled out to its end stop (None for doors and knobs)."""
+def _pulled_out(view: SimView, target: str, travel: Callable[[dict], float]) -> np.ndarray | None:
+    """Corners of a drawer's collision boxes (8 per box) pulled out by `travel(joint info)` metres from
+    where they are now (None for doors and knobs)."""
     joint = view.articulation_joints(target)[0]
     if not _is_slide(view, joint):
         return None
     info = view.joint(joint)
     _, opening, _ = _slide(view, target)
-    travel = float(np.ptp(info["range"])) - abs(info["qpos"])
-    entity = _fixture(view, target)
-    pts = view.geom_points(entity, body=info["body"])[:, :2] + opening[:2] * travel
-    return pts.min(axis=0), pts.max(axis=0)
+    return view.geom_points(_fixture(view, target), body=info["body"]) + opening * travel(info)
+
+
+def opened_footprint(view: SimView, target: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """The xy box a drawer covers when pulled out to its end stop (None for doors and knobs)."""
+    pts = _pulled_out(view, target, lambda info: float(np.ptp(info["range"])) - abs(info["qpos"]))
+    return None if pts is None else (pts[:, :2].min(axis=0), pts[:, :2].max(axis=0))
 
 
 # m a drawer's pull overshoots where LIBERO starts calling it open: the pull stops once it does
@@ -81,14 +87,9 @@ REACH_TOLERANCE = 0.012
 def opened_points(view: SimView, target: str) -> np.ndarray | None:
     """Points through a drawer's volume where the pull will leave it: just past where LIBERO calls it
     open (None for doors and knobs)."""
-    joint = view.articulation_joints(target)[0]
-    if not _is_slide(view, joint):
-        return None
-    info = view.joint(joint)
-    _, opening, _ = _slide(view, target)
-    entity = _fixture(view, target)
-    travel = abs(view.open_position(entity) - info["qpos"]) + PULL_OVERSHOOT
-    return fill_boxes(view.geom_points(entity, body=info["body"]).reshape(-1, 8, 3)) + opening * travel
+    open_at = view.open_position(_fixture(view, target))
+    corners = _pulled_out(view, target, lambda info: abs(open_at - info["qpos"]) + PULL_OVERSHOOT)
+    return None if corners is None else fill_boxes(corners.reshape(-1, 8, 3))
 
 
 def under_opened(view: SimView, target: str, obj: str) -> bool:

@@ -9,6 +9,7 @@ neighbours is the main failure.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -372,8 +373,8 @@ WAY_OUT_STEP, WAY_OUT_REACH = 0.01, 0.20  # m: the shifts tried, every 16th of a
 WAY_OUT_DIRECTIONS = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)])
 
 
-def _around_held(view: SimView, held: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The held object's filled footprint (xy); the filled points, above its top, of whatever hangs over
+def _around_held(view: SimView, held: str) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray], np.ndarray, np.ndarray]:
+    """The held object's filled footprint (xy) and the test of which xy points lie over it; the filled points, above its top, of whatever hangs over
     it (an entity with a part above its top and over its footprint: an opened drawer, not a tall
     neighbour beside it); and the points of everything else within its height band, near enough to be
     swept through on a way out."""
@@ -396,10 +397,10 @@ def _around_held(view: SimView, held: str) -> tuple[np.ndarray, np.ndarray, np.n
         if inside(above[:, :2]).any():
             over.append(above)
         band.append(points[(points[:, 2] > bottom) & (points[:, 2] <= top)])
-    return footprint, np.concatenate(over), np.concatenate(band)
+    return footprint, inside, np.concatenate(over), np.concatenate(band)
 
 
-def _inside(footprint: np.ndarray):
+def _inside(footprint: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """A test of which xy points lie within the convex hull of a footprint."""
     from scipy.spatial import ConvexHull, Delaunay
 
@@ -416,10 +417,10 @@ def _hand_overhead(grip: np.ndarray, yaw: float, points: np.ndarray) -> np.ndarr
 def headroom(view: SimView, held: str, yaw: float) -> float:
     """How far the held object, and the hand holding it with grasp yaw `yaw`, can rise before touching
     what hangs over them (inf with nothing over them)."""
-    footprint, over, _ = _around_held(view, held)
+    _, inside, over, _ = _around_held(view, held)
     top, grip = view.geom_points(held)[:, 2].max(), view.eef_position()
     rooms = [np.inf]
-    above_object = over[_inside(footprint)(over[:, :2])]
+    above_object = over[inside(over[:, :2])]
     if len(above_object):
         rooms.append(float(above_object[:, 2].min() - top))
     above_hand = _hand_overhead(grip, yaw, over)
@@ -434,7 +435,7 @@ def way_out(view: SimView, held: str, yaw: float) -> np.ndarray | None:
     its height; None if there is none within `WAY_OUT_REACH`."""
     from scipy.spatial import cKDTree
 
-    footprint, over, band = _around_held(view, held)
+    footprint, inside, over, band = _around_held(view, held)
     grip = view.eef_position()
     overhead = np.concatenate([over, band])
     if len(overhead) == 0:
@@ -444,7 +445,7 @@ def way_out(view: SimView, held: str, yaw: float) -> np.ndarray | None:
 
     def clear(shift: np.ndarray) -> bool:
         moved = footprint + shift
-        if overhead_tree.query(moved)[0].min() <= OVERHANG_GAP or _inside(moved)(overhead[:, :2]).any():
+        if overhead_tree.query(moved)[0].min() <= OVERHANG_GAP or inside(overhead[:, :2] - shift).any():
             return False
         return len(hand_points) == 0 or _hand_footprint_distance(grip[:2] + shift, yaw, hand_points).min() > OVERHANG_GAP
 

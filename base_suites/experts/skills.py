@@ -116,10 +116,11 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray
         yield from ctx.goto(target + np.array([0, 0, 0.03]), rot, OPEN, tol=0.012, max_steps=60)
         yield from ctx.goto(target, rot, OPEN, tol=0.006, max_steps=40, speed=0.5)
         yield from ctx.hold(CLOSE, 12, rot)
-        rise = float(np.clip(headroom(view, obj, grasp.yaw) - OVERHANG_GAP, MIN_LIFT, LIFT))
-        yield from ctx.goto(_above(target, grasp.position[2] + rise), rot, CLOSE, tol=0.02, max_steps=40)
+        room = headroom(view, obj, grasp.yaw)  # what hangs over it still does once it is lifted
+        lift = _above(target, grasp.position[2] + float(np.clip(room - OVERHANG_GAP, MIN_LIFT, LIFT)))
+        yield from ctx.goto(lift, rot, CLOSE, tol=0.02, max_steps=40)
         if view.held_object() == obj:
-            if np.isfinite(headroom(view, obj, grasp.yaw)):
+            if np.isfinite(room):
                 yield from _out_from_under(ctx, obj, grasp.yaw, rot)
             return True
         yield from ctx.hold(OPEN, 6, rot)
