@@ -36,3 +36,19 @@ def test_knob_draws_are_seeded_per_episode():
     rates = knob_rates("mixed")
     assert draw_knobs(rates, 1, 7)[0] == draw_knobs(rates, 1, 7)[0]
     assert any(draw_knobs(rates, 1, i)[0] != draw_knobs(rates, 2, i)[0] for i in range(20))
+
+
+def test_the_short_way_round_is_taken_only_when_asked():
+    """A parallel gripper grasps the same at yaw and yaw + pi. By default the plain grasp is kept (one
+    hand orientation per grasp for cloned policies); `shortest` takes whichever the hand turns to the
+    short way (a drawer push after a 150 deg turn sent OSC through the wrist's pitch stop)."""
+    from base_suites.experts.control import grasp_rotation, nearest_grasp_rotation, rotation_error
+
+    current = grasp_rotation(0.0)
+    yaw = np.deg2rad(120)
+    plain = nearest_grasp_rotation(yaw, current, wrist=0.0)
+    short = nearest_grasp_rotation(yaw, current, wrist=0.0, shortest=True)
+    assert np.allclose(plain, grasp_rotation(yaw))
+    assert np.allclose(short, grasp_rotation(yaw + np.pi))
+    assert abs(rotation_error(short, current)[2]) < abs(rotation_error(plain, current)[2])
+    assert np.allclose(nearest_grasp_rotation(np.deg2rad(30), current, wrist=0.0, shortest=True), grasp_rotation(np.deg2rad(30)))

@@ -2,6 +2,7 @@
 import h5py
 import numpy as np
 import pytest
+from scipy.spatial import ConvexHull, Delaunay
 
 import annotations.collect as collect
 from annotations import DemoFile
@@ -9,7 +10,7 @@ from base_suites import make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
 from base_suites.experts.control import finger_axis
 from base_suites.experts import skills
-from base_suites.experts.geometry import REACH_LIMIT, YAWS, _rim_grasps, choose_grasp, headroom, shape_of, slide_path, way_out
+from base_suites.experts.geometry import REACH_LIMIT, YAWS, _rim_grasps, choose_grasp, fill_boxes, headroom, shape_of, slide_path, way_out
 from base_suites.experts.skills import SkillContext
 from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
@@ -39,6 +40,7 @@ def _solve(suite, task, init=0, quality="clean", episode=0, reset_seed=None):
     ("libero_spatial", 4, "pick from an open drawer, carry over the cabinet"),
     ("libero_goal", 9, "set down on a tilted shelf (the wine rack)"),
     ("libero_goal", 3, "open a drawer, pick from under it and carry out sideways, place into it"),
+    ("libero_10", 3, "pull a partly open drawer out, fit a bowl under the drawer above, push it shut"),
 ])
 def test_expert_solves_one_task_per_primitive_family(suite, task, family):
     success, _, verdict = _solve(suite, task)
@@ -222,6 +224,50 @@ def test_a_drawer_is_pushed_shut_with_the_fingertips_past_a_wine_rack():
     closed, touched = _run_skill(env, articulated.close(SkillContext(env.sim, np.random.default_rng(0)), drawer))
     assert closed and env.sim.predicate(("close", drawer))
     assert "wine_rack_1" not in touched
+    env.close()
+
+
+def test_a_partly_open_drawer_is_pulled_out_to_its_end_stop_by_hooking_its_front_panel():
+    """libero_10/3 starts with the bottom drawer 1.4 cm short of its end stop, and the bowl fits between
+    its front panel and the handle of the drawer above only with that 1.4 cm: the plan pulls it out
+    first, the fingertips hooked behind the front panel (no turn of the hand to level and back)."""
+    env = make_env("libero_10", 3, seed=0)
+    env.reset(options={"init_state": 0})
+    drawer = "white_cabinet_1_bottom_region"
+    plan = [pred for pred, _ in plan_skills(env.task.goal, env.sim)]
+    assert plan[0] == ("pull_out", drawer) and plan[-1] == ("close", drawer)
+    assert articulated.pulled_short(env.sim, drawer) > articulated.FULLY_OUT
+    done, touched = _run_skill(env, articulated.pull_out(SkillContext(env.sim, np.random.default_rng(0)), drawer), max_steps=120)
+    assert done and articulated.pulled_short(env.sim, drawer) < articulated.FULLY_OUT / 2
+    assert touched <= {"white_cabinet_1"}
+    env.close()
+
+
+def test_a_bowl_is_set_down_in_the_few_millimetres_a_drawer_leaves_it():
+    """With libero_10/3's bottom drawer at its end stop, a 10.7 cm bowl has 11.6 cm between the drawer's
+    front panel and the handle of the drawer above. The spot search must find that gap (its coarse
+    lattice saw the 22 cm front panel at three points along its length and could not tell a footprint
+    3 mm clear of an obstacle from one 3 mm into it) and keep to the region's centre across the drawer."""
+    env = make_env("libero_10", 3, seed=0)
+    env.reset(options={"init_state": 0})
+    view, bowl, drawer = env.sim, "akita_black_bowl_1", "white_cabinet_1_bottom_region"
+    joint = view.articulation_joints(drawer)[0]
+    env.domain.sim.data.set_joint_qpos(joint, view.joint(joint)["range"][0])
+    env.domain.sim.forward()
+    spot = skills.target_xy(view, drawer, held=bowl)
+    region = view.region(drawer)
+    above = region.position[2] + 0.01
+    boxes = view.geom_points("white_cabinet_1").reshape(-1, 8, 3)
+    cabinet = fill_boxes(boxes[boxes[:, :, 2].max(axis=1) > above], spacing=0.002)
+    cabinet = cabinet[(cabinet[:, 2] > above) & (np.linalg.norm(cabinet[:, :2] - spot, axis=1) < 0.07)][:, :2]
+    footprint = view.geom_points(bowl)[:, :2] - view.position(bowl)[:2] + spot
+    outline = footprint[ConvexHull(footprint).vertices]
+    assert not (Delaunay(outline).find_simplex(cabinet) >= 0).any()
+    start, edge = outline, np.roll(outline, -1, axis=0) - outline
+    along = np.clip(((cabinet[:, None] - start) * edge).sum(-1) / (edge * edge).sum(-1), 0, 1)
+    assert np.linalg.norm(cabinet[:, None] - (start + along[..., None] * edge), axis=-1).min() > 0.002
+    axes, _ = region.footprint()
+    assert np.all(np.abs((spot - region.centre[:2]) @ axes) < 0.025)
     env.close()
 
 

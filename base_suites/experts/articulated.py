@@ -119,6 +119,43 @@ def clear_spot(view: SimView, target: str, obj: str, margin: float = 0.04) -> np
     return centre + opening[:2] * (front - centre @ opening[:2] - behind + margin)
 
 
+FULLY_OUT = 0.005  # m short of its end stop at which a drawer counts as pulled all the way out
+HOOK_DEPTH = 0.025  # m above the drawer's floor where the fingertips hook behind its front panel
+HOOK_INSIDE = 0.015  # m behind the front panel's inner face (the drawer region's near edge)
+
+
+def pulled_short(view: SimView, target: str) -> float:
+    """How far (m) a drawer stands short of its end stop; 0 for doors and knobs."""
+    joint = view.articulation_joints(target)[0]
+    if not _is_slide(view, joint):
+        return 0.0
+    info = view.joint(joint)
+    lo, hi = info["range"]
+    return abs((hi if view.opening_sign(_fixture(view, target)) > 0 else lo) - info["qpos"])
+
+
+def pull_out(ctx: SkillContext, target: str) -> Actions:
+    """Pull a partly open drawer out to its end stop, the closed fingertips hooked behind its front panel
+    from above: about 70 steps, against ~160 for a pull by the handle (the hand turned level and back).
+    libero_10/3 starts with its bottom drawer 1.4 cm short of the stop, and the 10.7 cm bowl fits
+    between the drawer's front panel and the handle of the drawer above only with that 1.4 cm."""
+    view = ctx.view
+    _, opening, _ = _slide(view, target)
+    region = view.region(target)
+    axes, half = region.footprint()
+    near_edge = float(np.abs(axes.T @ opening[:2]) @ half)
+    hook = region.position.copy()
+    hook[:2] += opening[:2] * (near_edge - HOOK_INSIDE)
+    hook[2] = region.position[2] - float(np.abs(region.rotation[2]) @ region.half_size) + HOOK_DEPTH  # above its bottom
+    rot = hand_down(view, float(np.arctan2(opening[1], opening[0])), at=hook, shortest=True)  # fingers across the pull
+    yield from ctx.goto(np.array([*hook[:2], max(view.eef_position()[2], hook[2] + 0.10)]), rot, CLOSE, tol=0.02, rot_tol=0.15, max_steps=100)
+    yield from ctx.goto(hook, rot, CLOSE, tol=0.008, max_steps=60, speed=0.6)
+    out = lambda: pulled_short(view, target) < FULLY_OUT / 2  # noqa: E731
+    yield from ctx.goto(hook + opening * (pulled_short(view, target) + 0.01), rot, CLOSE, tol=0.01, max_steps=30, until=out)
+    yield from ctx.goto(view.eef_position() + np.array([0.0, 0.0, 0.10]), rot, CLOSE, tol=0.02, max_steps=30)
+    return out()
+
+
 def doorway(view: SimView, target: str) -> tuple[np.ndarray, float] | None:
     """For a region under a roof behind a hinged door (a microwave's heating region): the horizontal
     direction its doorway faces and where the doorway's plane lies along it (the closed door's inner
@@ -222,7 +259,7 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
     _, opening, handle = _slide(view, target)
     push = -opening
     yaw = float(np.arctan2(push[1], push[0]))  # fingers side by side across the push
-    down = hand_down(view, yaw, at=handle)
+    down = hand_down(view, yaw, at=handle, shortest=True)
     rot = rot_axis(np.cross(push, [0.0, 0.0, 1.0]), PUSH_PITCH) @ down
     start = handle + opening * PUSH_STANDOFF
     yield from ctx.goto(np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.10)]), rot, CLOSE, tol=0.02, rot_tol=0.2, max_steps=100)

@@ -51,19 +51,23 @@ def grasp_rotation(yaw: float, tilt_axis: np.ndarray | None = None, tilt: float 
 WRIST_LIMIT = 2.6  # rad: keep the Panda's last joint (limit 2.90) clear of its stop
 
 
-def nearest_grasp_rotation(yaw: float, current: np.ndarray, wrist: float, then: float = 0.0, swing: float = 0.0) -> np.ndarray:
+def nearest_grasp_rotation(yaw: float, current: np.ndarray, wrist: float, then: float = 0.0, swing: float = 0.0,
+                           shortest: bool = False) -> np.ndarray:
     """`grasp_rotation(yaw)`, or the same grasp with the hand turned half a turn (a parallel gripper is
     symmetric) when only that keeps the last joint (now at `wrist`) off its stop, also after a planned
     further turn of `then` rad about world z (a knob turn). With the hand pointing down a turn of d about
     world z moves that joint by about -d, and the arm swinging by `swing` rad about the robot base on the
     way there (its first joint turning) moves it by about +swing; a joint at its stop makes OSC drag the
     hand sideways instead of turning it. The plain grasp stays the default so demonstrations keep one
-    hand orientation per grasp (a policy cloned from them would otherwise have to learn both)."""
+    hand orientation per grasp (a policy cloned from them would otherwise have to learn both). With
+    `shortest`, the one the hand turns to the short way is preferred instead: a drawer pushed shut with
+    the hand pitched after a 150 deg turn about the vertical sent OSC through the wrist's pitch stop."""
     options = []
     for flipped, candidate in enumerate((grasp_rotation(yaw), grasp_rotation(yaw + np.pi))):
-        arrived = wrist - float(rotation_error(candidate, current)[2]) + swing
+        turn = float(rotation_error(candidate, current)[2])
+        arrived = wrist - turn + swing
         blocked = max(abs(arrived), abs(arrived - then)) > WRIST_LIMIT
-        options.append((blocked, flipped, candidate))
+        options.append((blocked, abs(turn) if shortest else flipped, candidate))
     return min(options, key=lambda o: o[:2])[2]
 
 

@@ -18,7 +18,7 @@ from base_suites.experts.control import OPEN
 from base_suites.experts.geometry import handle_pinch
 from base_suites.experts.skills import SkillContext
 
-EXPERT_VERSION = "scripted-7"
+EXPERT_VERSION = "scripted-8"
 KNOBS = ("collide", "drop", "misplace", "tilt", "wrong_order", "jerky", "regrasp")
 # "mixed": every knob possible, most episodes still clean in all but one or two respects.
 MIXED_RATES = {"collide": 0.2, "drop": 0.2, "misplace": 0.15, "tilt": 0.2, "wrong_order": 0.15, "jerky": 0.15, "regrasp": 0.15}
@@ -67,7 +67,8 @@ Skill = Callable[[SkillContext], skills.Actions]
 def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str, ...], Skill]]:
     """Order the goal's predicates into (predicate, skill) steps: switch on first, open containers
     before filling them, close containers after filling them. Opening a container for an `in` goal is
-    a step of its own, keyed by the predicate it makes true. An object the opened drawer would hang over
+    a step of its own, keyed by the predicate it makes true; a drawer that starts partly open is pulled
+    out to its end stop first (step ("pull_out", drawer)). An object the opened drawer would hang over
     is picked from under it afterwards if some grasp still reaches it (a bowl's rim sticking out: two
     fewer carries, ~100 steps, in a 300-step horizon), else first moved clear (step ("clear", object,
     drawer))."""
@@ -79,10 +80,13 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
         if kind in ("on", "in"):
             obj, target = args
             container = articulated.container_of(view, target)
-            if kind == "in" and container is not None and not articulated.is_open(view, target) and target not in opened_for:
-                if articulated.under_opened(view, target, obj):
-                    steps.append((1, ("clear", obj, target), lambda c, o=obj, t=target: _clear_drawer_path(c, o, t)))
-                steps.append((1, ("open", target), lambda c, t=target: articulated.open_(c, t)))
+            if kind == "in" and container is not None and target not in opened_for:
+                if not articulated.is_open(view, target):
+                    if articulated.under_opened(view, target, obj):
+                        steps.append((1, ("clear", obj, target), lambda c, o=obj, t=target: _clear_drawer_path(c, o, t)))
+                    steps.append((1, ("open", target), lambda c, t=target: articulated.open_(c, t)))
+                elif articulated.pulled_short(view, target) > articulated.FULLY_OUT:
+                    steps.append((1, ("pull_out", target), lambda c, t=target: articulated.pull_out(c, t)))
                 opened_for.add(target)
             shared = targets.count(target) > 1
             steps.append((2, tuple(pred), lambda c, o=obj, t=target, s=shared: _pick_place(c, o, t, s)))

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from base_suites.experts.control import finger_axis
+from base_suites.experts.control import finger_axis, rot_axis
 from base_suites.sim_view import SimView
 
 MAX_WIDTH = 0.072  # widest object the fingers close around reliably
@@ -66,6 +66,19 @@ def shape_of(view: SimView, entity: str) -> Shape:
     return Shape(pts.min(axis=0), pts.max(axis=0))
 
 
+def standing_points(view: SimView, entity: str) -> np.ndarray:
+    """Box corners of `entity` (8 per box) as it will stand once set down: its tilt undone about its
+    origin. A bowl hangs ~15 deg tilted from a rim grasp and lands flat; its tilted footprint reaches
+    ~1 cm further to one side, which is all the room a bowl has in a drawer."""
+    pts, origin = view.geom_points(entity), view.position(entity)
+    up = view.rotation(entity)[:, 2]
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    sin = float(np.linalg.norm(axis))
+    if sin < 1e-9:
+        return pts
+    return (pts - origin) @ rot_axis(axis / sin, float(np.arctan2(sin, up[2]))).T + origin
+
+
 def _extent(points: np.ndarray, direction: np.ndarray) -> float:
     proj = points[:, :2] @ direction[:2]
     return float(proj.max() - proj.min())
@@ -115,14 +128,23 @@ def _covers_centre(parts: np.ndarray, shape: Shape) -> bool:
 _LATTICE = np.array([[a, b, c] for a in np.linspace(-1, 1, 9) for b in np.linspace(-1, 1, 9) for c in np.linspace(-1, 1, 3)])
 
 
-def fill_boxes(parts: np.ndarray) -> np.ndarray:
+def fill_boxes(parts: np.ndarray, spacing: float | None = None) -> np.ndarray:
     """Points through the volume of each box given by its 8 corners (SimView order: x, y, z nested),
-    so checks see faces between corners."""
+    so checks see faces between corners: a fixed 9 x 9 x 3 lattice per box, or with `spacing` (m) at
+    most that far apart along every edge (a drawer's 22 cm front panel, whose long edge may be the one
+    the fixed lattice samples thrice, for a placement that has millimetres to spare)."""
     origin = parts[:, 0]
     ex, ey, ez = (parts[:, 4] - origin) / 2, (parts[:, 2] - origin) / 2, (parts[:, 1] - origin) / 2
     centre = origin + ex + ey + ez
-    filled = centre[:, None] + _LATTICE[None, :, :1] * ex[:, None] + _LATTICE[None, :, 1:2] * ey[:, None] + _LATTICE[None, :, 2:] * ez[:, None]
-    return filled.reshape(-1, 3)
+    if spacing is None:
+        filled = centre[:, None] + _LATTICE[None, :, :1] * ex[:, None] + _LATTICE[None, :, 1:2] * ey[:, None] + _LATTICE[None, :, 2:] * ez[:, None]
+        return filled.reshape(-1, 3)
+    boxes = []
+    for c, *edges in zip(centre, ex, ey, ez):
+        steps = [np.linspace(-1, 1, max(2, int(np.ceil(2 * np.linalg.norm(e) / spacing)) + 1)) for e in edges]
+        grid = np.stack(np.meshgrid(*steps, indexing="ij"), axis=-1).reshape(-1, 3)
+        boxes.append(c + grid @ np.array(edges))
+    return np.concatenate(boxes) if boxes else np.zeros((0, 3))
 
 
 def _part_pinches(parts: np.ndarray) -> list[Grasp]:

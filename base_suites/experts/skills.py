@@ -24,6 +24,7 @@ from base_suites.experts.geometry import (
     push_yaw,
     shape_of,
     slide_path,
+    standing_points,
     way_out,
 )
 from base_suites.sim_view import GRIPPER, ROBOT, SimView
@@ -82,14 +83,15 @@ class SkillContext:
         return (yield from self.hold(OPEN, max_steps, rot, until=lambda: self.view.gripper_opening() >= held + clearance))
 
 
-def hand_down(view: SimView, yaw: float, at: np.ndarray | None = None, then: float = 0.0) -> np.ndarray:
+def hand_down(view: SimView, yaw: float, at: np.ndarray | None = None, then: float = 0.0, shortest: bool = False) -> np.ndarray:
     """The hand pointing down with grasp yaw `yaw`, turned so that the wrist stays off its stop when the
-    hand gets to `at` (default: where it is) and, from there, turns `then` rad further about world z."""
+    hand gets to `at` (default: where it is) and, from there, turns `then` rad further about world z;
+    `shortest`: of the two symmetric grasps, the one the hand turns to the short way."""
     base = view.robot_base_position()[:2]
     here = view.eef_position()[:2]
     there = here if at is None else np.asarray(at, dtype=float)[:2]
     swing = float(np.arctan2(*(there - base)[::-1]) - np.arctan2(*(here - base)[::-1]))
-    return nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6], then=then, swing=swing)
+    return nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6], then=then, swing=swing, shortest=shortest)
 
 
 def _above(p: np.ndarray, z: float) -> np.ndarray:
@@ -163,37 +165,77 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
     axes, half = region.footprint()
     if half is None:
         return centre
-    others = [fill_boxes(view.geom_points(o).reshape(-1, 8, 3)) for o in view.objects if o not in (held, region.parent)]
+    around = [o for o in view.objects if o not in (held, region.parent)]
     if any(view.joint_type(j) == "slide" for j in view.articulation_joints(region_name)):
         # A drawer: the cabinet above its back part (the drawer is only pulled out so far) counts too.
-        others.append(fill_boxes(view.geom_points(region.parent).reshape(-1, 8, 3)))
-    others = np.concatenate([p[p[:, 2] > region.position[2] + 0.01][:, :2] for p in others] or [np.zeros((0, 2))])
+        around.append(region.parent)
+    above = region.position[2] + 0.01
+    boxes = np.concatenate([view.geom_points(o).reshape(-1, 8, 3) for o in around] or [np.zeros((0, 8, 3))])
+    boxes = boxes[boxes[:, :, 2].max(axis=1) > above]
+    others = fill_boxes(boxes)
+    others = others[others[:, 2] > above][:, :2]
     if not len(others):
         return centre
     from scipy.spatial import cKDTree
 
     tree = cKDTree(others)
-    # The footprint filled, not just its corners: a small object could otherwise sit inside it unseen.
-    footprint = fill_boxes(view.geom_points(held).reshape(-1, 8, 3))[:, :2] - view.position(held)[:2]
+    # The footprint filled, not just its corners: a small object could otherwise sit inside it unseen;
+    # as the object will stand, not as it hangs tilted from its grasp.
+    standing = _xy(fill_boxes(standing_points(view, held).reshape(-1, 8, 3)), 0.0005) - view.position(held)[:2]
     if not np.all(np.abs((others - centre) @ axes) <= half, axis=1).any():
         if shared:
             long_axis = int(np.argmax(half))
             return centre + axes[:, long_axis] * SHARED_OFFSET * half[long_axis]
-        if float(tree.query(footprint + centre)[0].min()) > gap:
+        if float(tree.query(standing + centre)[0].min()) > gap:
             return centre
         # An object larger than the region (a plate in front of the stove) reaches beyond it, to what
         # stands around it: searched like a region that something stands in.
     grid = np.linspace(-INNER, INNER, 9)
-    spots = sorted((centre + axes @ (np.array([u, v]) * half) for u in grid for v in grid), key=lambda p: float(np.linalg.norm(p - centre)))
-    best, best_room = centre, -np.inf
-    for spot in spots:
-        room = float(tree.query(footprint + spot)[0].min())
-        if room > gap:
+    spots = [centre + axes @ (np.array([u, v]) * half) for u in grid for v in grid]
+    for spot in sorted(spots, key=lambda p: float(np.linalg.norm(p - centre))):
+        if float(tree.query(standing + spot)[0].min()) > gap:
             return spot
-        if room > best_room:
-            best, best_room = spot, room
-    return best
+    return _tightest_fit(boxes, above, standing, centre, axes, half)
 
+
+SPOT_RESOLUTION = 0.0025  # m between the spots, and between the obstacle points, of a tight fit
+OFF_CENTRE_COST = 0.05  # m of room a tight fit gives up per m nearer the region's centre (1 mm per 2 cm)
+
+
+def _xy(points: np.ndarray, cell: float) -> np.ndarray:
+    """The points' xy, one per `cell`-sized square: a filled box's layers above each other (and points
+    closer than the precision needed) only multiply the cost of measuring room."""
+    return np.unique(np.round(points[:, :2] / cell), axis=0) * cell
+
+
+def _tightest_fit(boxes: np.ndarray, above: float, standing: np.ndarray, centre: np.ndarray, axes: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """The spot in the region whose footprint keeps the most room, measured exactly enough for a fit
+    with millimetres to spare (a 10.7 cm bowl into the 11.6 cm of drawer a cabinet leaves exposed). The
+    coarse search measures room between point lattices, which cannot tell a footprint 3 mm clear of an
+    obstacle from one 3 mm into it, and samples a drawer's 22 cm front panel at three points along its
+    length; here the obstacles are sampled every few millimetres and room is signed: the distance from
+    each obstacle point to the edges of the footprint's convex hull, negative inside it."""
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(standing)
+    normals, offsets = hull.equations[:, :2], hull.equations[:, 2]
+    reach = float(np.linalg.norm(standing, axis=1).max())
+    obstacles = fill_boxes(boxes, spacing=SPOT_RESOLUTION * 4)
+    obstacles = _xy(obstacles[obstacles[:, 2] > above], SPOT_RESOLUTION)
+    near = obstacles[np.all(np.abs((obstacles - centre) @ axes) <= INNER * half + reach, axis=1)]
+    if not len(near):
+        return centre
+
+    def roomiest(spots: np.ndarray) -> np.ndarray:
+        """The spot with the most room, less `OFF_CENTRE_COST` of it per metre off the region's centre
+        (pose accuracy: a drawer's widest gap may lie at its side)."""
+        rooms = np.array([((near - spot) @ normals.T + offsets).max(axis=1).min() for spot in spots])
+        return spots[int(np.argmax(rooms - OFF_CENTRE_COST * np.linalg.norm(spots - centre, axis=1)))]
+
+    coarse = [np.arange(-INNER * h, INNER * h + 1e-9, 2 * SPOT_RESOLUTION) for h in half]
+    best = roomiest(np.array([centre + axes @ np.array([u, v]) for u in coarse[0] for v in coarse[1]]))
+    fine = np.arange(-2, 3) * SPOT_RESOLUTION / 2
+    return roomiest(np.array([best + axes @ np.array([u, v]) for u in fine for v in fine]))
 
 
 APPROACH_CLEARANCE = 0.04  # m above its support where a set-down slows to the touch-down speed
@@ -233,8 +275,12 @@ def _tilt_rotation(ctx: SkillContext, yaw: float, angle: float) -> np.ndarray:
 
 
 def _set_down(view: SimView, obj: str) -> bool:
-    """Whether the held `obj` touches anything but the robot: it has reached what it is set down on."""
-    return any(c.involves(obj) and c.other(obj) not in (GRIPPER, ROBOT) for c in view.contacts())
+    """Whether the held `obj` touches anything but the robot with its lower half: it has reached what
+    it is set down on. A touch higher up is something it passes under (the handle of the drawer above
+    the one a bowl goes into, brushed by its rim): letting go there dropped the bowl 13 cm."""
+    shape = shape_of(view, obj)
+    middle = (shape.bottom + shape.top) / 2
+    return any(c.involves(obj) and c.other(obj) not in (GRIPPER, ROBOT) and c.position[2] < middle for c in view.contacts())
 
 
 def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = False) -> Actions:
