@@ -10,7 +10,18 @@ from base_suites import make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
 from base_suites.experts.control import finger_axis
 from base_suites.experts import skills
-from base_suites.experts.geometry import REACH_LIMIT, YAWS, _rim_grasps, choose_grasp, fill_boxes, headroom, shape_of, slide_path, way_out
+from base_suites.experts.geometry import (
+    REACH_LIMIT,
+    YAWS,
+    _rim_grasps,
+    choose_grasp,
+    fill_boxes,
+    headroom,
+    shape_of,
+    slide_path,
+    standing_points,
+    way_out,
+)
 from base_suites.experts.skills import SkillContext
 from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
@@ -268,6 +279,33 @@ def test_a_bowl_is_set_down_in_the_few_millimetres_a_drawer_leaves_it():
     assert np.linalg.norm(cabinet[:, None] - (start + along[..., None] * edge), axis=-1).min() > 0.002
     axes, _ = region.footprint()
     assert np.all(np.abs((spot - region.centre[:2]) @ axes) < 0.025)
+    env.close()
+
+
+def test_spots_are_judged_by_the_footprint_an_object_will_stand_on():
+    """A bowl hanging 15 deg tilted from a rim grasp lands flat, so its spot is judged by its upright
+    footprint; a can lying on its side (libero_10/7's alphabet soup) stays lying."""
+    env = make_env("libero_10", 7, seed=0)
+    env.reset(options={"init_state": 26})
+    view = env.sim
+    can = "alphabet_soup_1"
+    assert view.tilt(can) > 1.4
+    assert np.abs(standing_points(view, can) - view.geom_points(can)).max() < 0.005
+    env.close()
+    env = make_env("libero_10", 3, seed=0)
+    env.reset(options={"init_state": 0})
+    view, bowl = env.sim, "akita_black_bowl_1"
+    upright = view.geom_points(bowl)
+    joint = env.domain.get_object(bowl).joints[0]
+    pose = env.domain.sim.data.get_joint_qpos(joint).copy()
+    pose[3:] = [np.cos(0.125), np.sin(0.125), 0.0, 0.0]  # 15 deg about x (wxyz)
+    env.domain.sim.data.set_joint_qpos(joint, pose)
+    env.domain.sim.forward()
+    assert abs(view.tilt(bowl) - 0.25) < 0.01
+    tilted, standing = view.geom_points(bowl), standing_points(view, bowl)
+    height = lambda pts: float(np.ptp(pts[:, 2]))  # noqa: E731
+    assert height(tilted) > height(upright) + 0.01
+    assert abs(height(standing) - height(upright)) < 0.001
     env.close()
 
 

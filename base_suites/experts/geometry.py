@@ -67,11 +67,13 @@ def shape_of(view: SimView, entity: str) -> Shape:
 
 
 def standing_points(view: SimView, entity: str) -> np.ndarray:
-    """Box corners of `entity` (8 per box) as it will stand once set down: its tilt undone about its
-    origin. A bowl hangs ~15 deg tilted from a rim grasp and lands flat; its tilted footprint reaches
-    ~1 cm further to one side, which is all the room a bowl has in a drawer."""
-    pts, origin = view.geom_points(entity), view.position(entity)
-    up = view.rotation(entity)[:, 2]
+    """Box corners of `entity` (8 per box) as it will stand once set down: turned about its origin so
+    that the local axis nearest world up points straight up. A bowl hangs ~15 deg tilted from a rim
+    grasp and lands flat, and its tilted footprint reaches ~1 cm further to one side, which is all the
+    room a bowl has in a drawer; a can lying on its side stays lying."""
+    pts, origin, rot = view.geom_points(entity), view.position(entity), view.rotation(entity)
+    nearest = int(np.argmax(np.abs(rot[2])))
+    up = rot[:, nearest] * np.sign(rot[2, nearest])
     axis = np.cross(up, [0.0, 0.0, 1.0])
     sin = float(np.linalg.norm(axis))
     if sin < 1e-9:

@@ -214,7 +214,9 @@ def _tightest_fit(boxes: np.ndarray, above: float, standing: np.ndarray, centre:
     coarse search measures room between point lattices, which cannot tell a footprint 3 mm clear of an
     obstacle from one 3 mm into it, and samples a drawer's 22 cm front panel at three points along its
     length; here the obstacles are sampled every few millimetres and room is signed: the distance from
-    each obstacle point to the edges of the footprint's convex hull, negative inside it."""
+    each obstacle point to the edges of the footprint's convex hull, negative inside it. The region's
+    own rim counts as well (a basket's wall, which is not among the obstacles): pushed only away from
+    what stands in a basket, a box ended up on its rim."""
     from scipy.spatial import ConvexHull
 
     hull = ConvexHull(standing)
@@ -226,11 +228,14 @@ def _tightest_fit(boxes: np.ndarray, above: float, standing: np.ndarray, centre:
     if not len(near):
         return centre
 
+    outline = standing[hull.vertices] @ axes  # hull corners in the region's axes, about the spot
+
     def roomiest(spots: np.ndarray) -> np.ndarray:
         """The spot with the most room, less `OFF_CENTRE_COST` of it per metre off the region's centre
         (pose accuracy: a drawer's widest gap may lie at its side)."""
         rooms = np.array([((near - spot) @ normals.T + offsets).max(axis=1).min() for spot in spots])
-        return spots[int(np.argmax(rooms - OFF_CENTRE_COST * np.linalg.norm(spots - centre, axis=1)))]
+        inside = (half - np.abs(outline[None] + ((spots - centre) @ axes)[:, None])).min(axis=(1, 2))
+        return spots[int(np.argmax(np.minimum(rooms, inside) - OFF_CENTRE_COST * np.linalg.norm(spots - centre, axis=1)))]
 
     coarse = [np.arange(-INNER * h, INNER * h + 1e-9, 2 * SPOT_RESOLUTION) for h in half]
     best = roomiest(np.array([centre + axes @ np.array([u, v]) for u in coarse[0] for v in coarse[1]]))
