@@ -179,22 +179,25 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
     from scipy.spatial import cKDTree
 
     tree = cKDTree(others)
-    # The footprint filled, not just its corners: a small object could otherwise sit inside it unseen;
-    # as the object will stand, not as it hangs tilted from its grasp.
-    standing = _xy(fill_boxes(standing_points(view, held).reshape(-1, 8, 3)), 0.0005) - view.position(held)[:2]
+    # The footprint filled, not just its corners: a small object could otherwise sit inside it unseen.
+    footprint = _xy(fill_boxes(view.geom_points(held).reshape(-1, 8, 3)), 0.0005) - view.position(held)[:2]
     if not np.all(np.abs((others - centre) @ axes) <= half, axis=1).any():
         if shared:
             long_axis = int(np.argmax(half))
             return centre + axes[:, long_axis] * SHARED_OFFSET * half[long_axis]
-        if float(tree.query(standing + centre)[0].min()) > gap:
+        if float(tree.query(footprint + centre)[0].min()) > gap:
             return centre
         # An object larger than the region (a plate in front of the stove) reaches beyond it, to what
         # stands around it: searched like a region that something stands in.
     grid = np.linspace(-INNER, INNER, 9)
     spots = [centre + axes @ (np.array([u, v]) * half) for u in grid for v in grid]
     for spot in sorted(spots, key=lambda p: float(np.linalg.norm(p - centre))):
-        if float(tree.query(standing + spot)[0].min()) > gap:
+        if float(tree.query(footprint + spot)[0].min()) > gap:
             return spot
+    # The tight fit judges the footprint as the object will stand, not as it hangs tilted from its grasp
+    # (the coarse search keeps the held footprint: judged upright, a bowl in libero_goal/3's drawer was
+    # sent 3.6 cm off the centre, past the pose-accuracy limit, for the full gap).
+    standing = _xy(fill_boxes(standing_points(view, held).reshape(-1, 8, 3)), 0.0005) - view.position(held)[:2]
     return _tightest_fit(boxes, above, standing, centre, axes, half)
 
 
