@@ -68,6 +68,11 @@ class Region:
             return self.position
         return self.position + (float(self.half_size[2]) + ON_TEST_HEIGHT / 2) * up
 
+    @property
+    def bottom(self) -> float:
+        """World height of the region box's lowest point (a drawer region's: its floor)."""
+        return float(self.position[2] - np.abs(self.rotation[2]) @ self.half_size)
+
     def footprint(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The region's two horizontal axes (world xy unit vectors, one per column) and its half sizes
         along them. Drawer regions come with their local x pointing down and a wine rack's slot with its

@@ -146,7 +146,7 @@ def pull_out(ctx: SkillContext, target: str) -> Actions:
     near_edge = float(np.abs(axes.T @ opening[:2]) @ half)
     hook = region.position.copy()
     hook[:2] += opening[:2] * (near_edge - HOOK_INSIDE)
-    hook[2] = region.position[2] - float(np.abs(region.rotation[2]) @ region.half_size) + HOOK_DEPTH  # above its bottom
+    hook[2] = region.bottom + HOOK_DEPTH
     rot = hand_down(view, float(np.arctan2(opening[1], opening[0])), at=hook, shortest=True)  # fingers across the pull
     yield from ctx.goto(np.array([*hook[:2], max(view.eef_position()[2], hook[2] + 0.10)]), rot, CLOSE, tol=0.02, rot_tol=0.15, max_steps=100)
     yield from ctx.goto(hook, rot, CLOSE, tol=0.008, max_steps=60, speed=0.6)
