@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
+from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z, rotation_error
 from base_suites.experts.geometry import choose_grasp, fill_boxes, floor_and_roof
 from base_suites.experts.skills import Actions, SkillContext, hand_down
 from base_suites.sim_view import SimView
@@ -208,6 +208,8 @@ def _is_slide(view: SimView, joint: str) -> bool:
 HANDLE_ROLL = 0.8
 # Height above the handle at which the hand travels to the drawer before coming down in front of it.
 APPROACH_CLEARANCE = 0.12
+PULL_SPEED = 0.7  # of the servo's top speed, for the pull
+GRASP_DEPTH = 0.004  # m behind the handle bar's front face where the grip point closes on it
 
 
 def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
@@ -217,33 +219,36 @@ def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
     standoff = handle + opening * 0.10
     travel = max(view.eef_position()[2], handle[2] + APPROACH_CLEARANCE)
     yield from ctx.goto(np.array([*standoff[:2], travel]), rot, OPEN, tol=0.02, rot_tol=0.2, max_steps=100)
-    yield from ctx.goto(standoff, rot, OPEN, tol=0.01, max_steps=120)
-    yield from ctx.goto(handle + opening * 0.005, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
+    yield from ctx.goto(standoff, rot, OPEN, tol=0.02, max_steps=120)
+    yield from ctx.goto(handle - opening * GRASP_DEPTH, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
     yield from ctx.hold(CLOSE, 10, rot)
     is_open = lambda: view.predicate(("open", target))  # noqa: E731
     for _ in range(3):
         goal = view.eef_position() + opening * 0.20
-        yield from ctx.goto(goal, rot, CLOSE, tol=0.015, max_steps=80, speed=0.5, until=is_open)
+        yield from ctx.goto(goal, rot, CLOSE, tol=0.015, max_steps=80, speed=PULL_SPEED, until=is_open)
         if is_open():
             break
     yield from ctx.release(rot)
-    yield from ctx.goto(view.eef_position() + opening * 0.08, rot, OPEN, tol=0.02, max_steps=30)
-    yield from _point_down(ctx)
+    yield from _point_down(ctx, opening)
     return view.predicate(("open", target))
 
 
 RETREAT = 0.08  # m the hand backs off towards the robot before turning back to pointing down
+LET_GO = 0.08  # m the opened hand first backs off the handle along the drawer's opening direction
+TURN_TOL = 0.3  # rad left of the turn back to pointing down when the next skill takes over
 
 
-def _point_down(ctx: SkillContext) -> Actions:
-    """Rise, back off towards the robot and turn the horizontal hand back to pointing down: done on the
-    way to the next pick, the quarter turn drags the hand off course and into the cabinet; done at full
-    reach (a drawer pulled out far), it stretches the elbow straight, where OSC cannot bend it back."""
+def _point_down(ctx: SkillContext, opening: np.ndarray) -> Actions:
+    """Back off the handle, rise, back off towards the robot and turn the horizontal hand back to
+    pointing down: done on the way to the next pick, the quarter turn drags the hand off course and
+    into the cabinet; done at full reach (a drawer pulled out far), it stretches the elbow straight,
+    where OSC cannot bend it back. The last `TURN_TOL` of the turn is left to the next skill's first
+    move, which turns the hand while it travels."""
     view = ctx.view
     toward_base = view.robot_base_position()[:2] - view.eef_position()[:2]
-    back = np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
-    yield from ctx.goto(view.eef_position() + back, view.eef_rotation(), OPEN, tol=0.02, max_steps=30)
-    yield from ctx.goto(view.eef_position(), hand_down(view, 0.0), OPEN, tol=0.03, rot_tol=0.15, max_steps=60)
+    back = opening * LET_GO + np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
+    yield from ctx.goto(view.eef_position() + back, view.eef_rotation(), OPEN, tol=0.02, max_steps=40)
+    yield from ctx.goto(view.eef_position(), hand_down(view, 0.0), OPEN, tol=0.03, rot_tol=TURN_TOL, max_steps=60)
 
 
 # Drawers are pushed shut with the closed fingertips on the front panel, the hand pointing down and
