@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z, rotation_error
+from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
 from base_suites.experts.geometry import choose_grasp, fill_boxes, floor_and_roof
 from base_suites.experts.skills import Actions, SkillContext, hand_down
 from base_suites.sim_view import SimView
