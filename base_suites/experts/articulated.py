@@ -60,13 +60,18 @@ def _slide(view: SimView, target: str) -> tuple[str, np.ndarray, np.ndarray]:
     return joint, opening, handle
 
 
+def _drawer_joint(view: SimView, target: str) -> dict | None:
+    """`SimView.joint` of the slide a drawer target moves on; None for doors and knobs."""
+    joint = view.articulation_joints(target)[0]
+    return view.joint(joint) if _is_slide(view, joint) else None
+
+
 def _pulled_out(view: SimView, target: str, travel: Callable[[dict], float]) -> np.ndarray | None:
     """Corners of a drawer's collision boxes (8 per box) pulled out by `travel(joint info)` metres from
     where they are now (None for doors and knobs)."""
-    joint = view.articulation_joints(target)[0]
-    if not _is_slide(view, joint):
+    info = _drawer_joint(view, target)
+    if info is None:
         return None
-    info = view.joint(joint)
     _, opening, _ = _slide(view, target)
     return view.geom_points(_fixture(view, target), body=info["body"]) + opening * travel(info)
 
@@ -126,10 +131,9 @@ HOOK_INSIDE = 0.015  # m behind the front panel's inner face (the drawer region'
 
 def pulled_short(view: SimView, target: str) -> float:
     """How far (m) a drawer stands short of its end stop; 0 for doors and knobs."""
-    joint = view.articulation_joints(target)[0]
-    if not _is_slide(view, joint):
+    info = _drawer_joint(view, target)
+    if info is None:
         return 0.0
-    info = view.joint(joint)
     lo, hi = info["range"]
     return abs((hi if view.opening_sign(_fixture(view, target)) > 0 else lo) - info["qpos"])
 

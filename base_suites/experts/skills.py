@@ -180,7 +180,7 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
 
     tree = cKDTree(others)
     # The footprint filled, not just its corners: a small object could otherwise sit inside it unseen.
-    footprint = _xy(fill_boxes(view.geom_points(held).reshape(-1, 8, 3)), 0.0005) - view.position(held)[:2]
+    footprint = _footprint_xy(view.geom_points(held), view.position(held))
     if not np.all(np.abs((others - centre) @ axes) <= half, axis=1).any():
         if shared:
             long_axis = int(np.argmax(half))
@@ -197,12 +197,20 @@ def _free_spot(view: SimView, region_name: str, held: str, shared: bool, gap: fl
     # The tight fit judges the footprint as the object will stand, not as it hangs tilted from its grasp
     # (the coarse search keeps the held footprint: judged upright, a bowl in libero_goal/3's drawer was
     # sent 3.6 cm off the centre, past the pose-accuracy limit, for the full gap).
-    standing = _xy(fill_boxes(standing_points(view, held).reshape(-1, 8, 3)), 0.0005) - view.position(held)[:2]
+    standing = _footprint_xy(standing_points(view, held), view.position(held))
     return _tightest_fit(boxes, above, standing, centre, axes, half)
 
 
 SPOT_RESOLUTION = 0.0025  # m between the spots, and between the obstacle points, of a tight fit
 OFF_CENTRE_COST = 0.05  # m of room a tight fit gives up per m nearer the region's centre (1 mm per 2 cm)
+
+
+FOOTPRINT_CELL = 0.0005  # m: an object's filled footprint keeps one point per square this size
+
+
+def _footprint_xy(corners: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """An object's filled footprint (xy, relative to its `origin`) from its box corners (8 per box)."""
+    return _xy(fill_boxes(corners.reshape(-1, 8, 3)), FOOTPRINT_CELL) - origin[:2]
 
 
 def _xy(points: np.ndarray, cell: float) -> np.ndarray:
