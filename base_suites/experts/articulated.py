@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, rot_axis, rot_z
+from base_suites.experts.control import CLOSE, OPEN, grasp_rotation, pitched_down, rot_axis, rot_z, rotation_error
 from base_suites.experts.geometry import choose_grasp, fill_boxes, floor_and_roof
 from base_suites.experts.skills import Actions, SkillContext, hand_down
 from base_suites.sim_view import SimView
@@ -78,7 +78,7 @@ def _pulled_out(view: SimView, target: str, travel: Callable[[dict], float]) -> 
 
 def opened_footprint(view: SimView, target: str) -> tuple[np.ndarray, np.ndarray] | None:
     """The xy box a drawer covers when pulled out to its end stop (None for doors and knobs)."""
-    pts = _pulled_out(view, target, lambda info: float(np.ptp(info["range"])) - abs(info["qpos"]))
+    pts = _pulled_out(view, target, lambda _info: pulled_short(view, target))
     return None if pts is None else (pts[:, :2].min(axis=0), pts[:, :2].max(axis=0))
 
 
@@ -212,6 +212,7 @@ def _is_slide(view: SimView, joint: str) -> bool:
 HANDLE_ROLL = 0.8
 # Height above the handle at which the hand travels to the drawer before coming down in front of it.
 APPROACH_CLEARANCE = 0.12
+APPROACH_SPEED = 0.8  # of the servo's top speed, for the last 10 cm to the handle
 PULL_SPEED = 0.7  # of the servo's top speed, for the pull
 GRASP_DEPTH = 0.004  # m behind the handle bar's front face where the grip point closes on it
 
@@ -219,12 +220,12 @@ GRASP_DEPTH = 0.004  # m behind the handle bar's front face where the grip point
 def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
     view = ctx.view
     _, opening, handle = _slide(view, target)
-    rot = _hand_facing(-opening, HANDLE_ROLL)
+    rot = _handle_grip(view, opening)
     standoff = handle + opening * 0.10
     travel = max(view.eef_position()[2], handle[2] + APPROACH_CLEARANCE)
     yield from ctx.goto(np.array([*standoff[:2], travel]), rot, OPEN, tol=0.02, rot_tol=0.2, max_steps=100)
     yield from ctx.goto(standoff, rot, OPEN, tol=0.02, max_steps=120)
-    yield from ctx.goto(handle - opening * GRASP_DEPTH, rot, OPEN, tol=0.006, max_steps=60, speed=0.5)
+    yield from ctx.goto(handle - opening * GRASP_DEPTH, rot, OPEN, tol=0.006, max_steps=60, speed=APPROACH_SPEED)
     yield from ctx.hold(CLOSE, 10, rot)
     is_open = lambda: view.predicate(("open", target))  # noqa: E731
     for _ in range(3):
@@ -237,22 +238,32 @@ def _pull_drawer(ctx: SkillContext, target: str) -> Actions:
     return view.predicate(("open", target))
 
 
+def _handle_grip(view: SimView, opening: np.ndarray) -> np.ndarray:
+    """The hand facing the handle, rolled `HANDLE_ROLL` from vertical, or the same grip half a turn
+    about the pointing axis (a parallel gripper is symmetric, and the housing sits where it did),
+    whichever the hand turns to the shorter way from where it points now: from pointing down one takes
+    ~1.7 rad of turn, the other ~2.6, ~30 steps of OSC turning each way."""
+    grips = [_hand_facing(-opening, roll) for roll in (HANDLE_ROLL, HANDLE_ROLL + np.pi)]
+    return min(grips, key=lambda grip: float(np.linalg.norm(rotation_error(grip, view.eef_rotation()))))
+
+
 RETREAT = 0.08  # m the hand backs off towards the robot before turning back to pointing down
 LET_GO = 0.08  # m the opened hand first backs off the handle along the drawer's opening direction
-TURN_TOL = 0.3  # rad left of the turn back to pointing down when the next skill takes over
+TURN_TOL = 0.15  # rad left of the turn back to pointing down when the next skill takes over
 
 
 def _point_down(ctx: SkillContext, opening: np.ndarray) -> Actions:
     """Back off the handle, rise, back off towards the robot and turn the horizontal hand back to
     pointing down: done on the way to the next pick, the quarter turn drags the hand off course and
     into the cabinet; done at full reach (a drawer pulled out far), it stretches the elbow straight,
-    where OSC cannot bend it back. The last `TURN_TOL` of the turn is left to the next skill's first
-    move, which turns the hand while it travels."""
+    where OSC cannot bend it back. The hand is only tilted down, its wrist kept as the grip left it: a
+    turn about the vertical is the next pick's, which knows its grasp (`hand_down`). The last
+    `TURN_TOL` of the tilt is left to that pick's first move, which turns the hand while it travels."""
     view = ctx.view
     toward_base = view.robot_base_position()[:2] - view.eef_position()[:2]
     back = opening * LET_GO + np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
     yield from ctx.goto(view.eef_position() + back, view.eef_rotation(), OPEN, tol=0.02, max_steps=40)
-    yield from ctx.goto(view.eef_position(), hand_down(view, 0.0), OPEN, tol=0.03, rot_tol=TURN_TOL, max_steps=60)
+    yield from ctx.goto(view.eef_position(), pitched_down(view.eef_rotation()), OPEN, tol=0.03, rot_tol=TURN_TOL, max_steps=60)
 
 
 # Drawers are pushed shut with the closed fingertips on the front panel, the hand pointing down and

@@ -48,6 +48,16 @@ def grasp_rotation(yaw: float, tilt_axis: np.ndarray | None = None, tilt: float 
     return r
 
 
+def pitched_down(current: np.ndarray) -> np.ndarray:
+    """`current` tilted the short way to pointing straight down, the turn about the hand's own axis
+    (its last joint) left as it is."""
+    pointing = current[:, 2]
+    axis = np.cross(pointing, [0.0, 0.0, -1.0])
+    if np.linalg.norm(axis) < 1e-9:
+        return current if pointing[2] < 0 else rot_axis([1.0, 0.0, 0.0], np.pi) @ current
+    return rot_axis(axis, float(np.arccos(np.clip(-pointing[2], -1.0, 1.0)))) @ current
+
+
 WRIST_LIMIT = 2.6  # rad: keep the Panda's last joint (limit 2.90) clear of its stop
 
 

@@ -275,10 +275,13 @@ def _pinch_height(shape: Shape) -> float:
     return max(shape.bottom + 0.012, shape.top - min(0.035, shape.height * 0.5))
 
 
-def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, clearance: float = 0.06) -> float:
+def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, clearance: float = 0.06,
+                 ahead_only: bool = False) -> float:
     """Height of the grip point that keeps the held object's bottom `margin` above everything in the
     corridor between where it is and where it goes (not above the whole scene: tall cabinets elsewhere
-    would force needlessly high, slow carries)."""
+    would force needlessly high, slow carries). `ahead_only`: what stands behind the object's start
+    does not count, for a carry straight away from what it stood against (a bowl moved out from in
+    front of a cabinet need not be lifted over the cabinet's drawers)."""
     held_shape = shape_of(view, held)
     grip_to_bottom = view.eef_position()[2] - held_shape.bottom
     start = held_shape.centre[:2]
@@ -291,9 +294,10 @@ def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 
             continue
         pts = view.geom_points(entity)
         rel = pts[:, :2] - start
-        t = np.clip(rel @ seg / length**2, 0, 1)
+        along = rel @ seg / length**2
+        t = np.clip(along, 0, 1)
         dist = np.linalg.norm(rel - t[:, None] * seg, axis=1)
-        near = pts[dist < corridor]
+        near = pts[(dist < corridor) & ((along > 0) | (not ahead_only))]
         if len(near):
             tops.append(float(near[:, 2].max()))
     return max(tops) + margin + grip_to_bottom

@@ -34,6 +34,7 @@ Actions = Generator[np.ndarray, None, bool]
 
 LIFT = 0.10  # m a grasped object is lifted before it is carried off ...
 MIN_LIFT = 0.01  # ... or, under an overhang, at least this far: clear of the table to be carried out sideways
+LOW_CARRY = 0.01  # m above the table that `place(low=True)` carries an object's bottom
 RELEASE_CLEARANCE = 0.02  # m the fingers open beyond the held width before the hand moves off
 
 
@@ -98,10 +99,11 @@ def _above(p: np.ndarray, z: float) -> np.ndarray:
     return np.array([p[0], p[1], z])
 
 
-def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray | None = None, grasp_with: Callable[[SimView, str], Grasp | None] | None = None) -> Actions:
-    """Top-down grasp of `obj` and lift to carrying height; retries with a fresh grasp choice. The xy
-    `destination` it will be carried to keeps the grasp one the arm can still set down there;
-    `grasp_with` picks the grasp instead (a handle, for a carry through a doorway)."""
+def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray | None = None, grasp_with: Callable[[SimView, str], Grasp | None] | None = None,
+         lift: float = LIFT) -> Actions:
+    """Top-down grasp of `obj` and lift by `lift` (m, less under an overhang); retries with a fresh
+    grasp choice. The xy `destination` it will be carried to keeps the grasp one the arm can still set
+    down there; `grasp_with` picks the grasp instead (a handle, for a carry through a doorway)."""
     view = ctx.view
     for attempt in range(attempts):
         grasp = (grasp_with and grasp_with(view, obj)) or choose_grasp(view, obj, destination=destination) or narrowest_pinch(view, obj)
@@ -119,8 +121,8 @@ def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray
         yield from ctx.goto(target, rot, OPEN, tol=0.006, max_steps=40, speed=0.5)
         yield from ctx.hold(CLOSE, 12, rot)
         room = headroom(view, obj, grasp.yaw)  # what hangs over it still does once it is lifted
-        lift = _above(target, grasp.position[2] + float(np.clip(room - OVERHANG_GAP, MIN_LIFT, LIFT)))
-        yield from ctx.goto(lift, rot, CLOSE, tol=0.02, max_steps=40)
+        lifted = _above(target, grasp.position[2] + float(np.clip(room - OVERHANG_GAP, MIN_LIFT, lift)))
+        yield from ctx.goto(lifted, rot, CLOSE, tol=0.02, max_steps=40)
         if view.held_object() == obj:
             if np.isfinite(room):
                 yield from _out_from_under(ctx, obj, grasp.yaw, rot)
@@ -301,9 +303,10 @@ def _set_down(view: SimView, obj: str) -> bool:
     return min(touches) < (shape.bottom + shape.top) / 2
 
 
-def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = False) -> Actions:
+def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = False, low: bool = False) -> Actions:
     """Carry the held `obj` above `target` (a region, an entity or an xy point) and set it down on contact.
-    `shared`: other goal objects go to the same region (see `_free_spot`)."""
+    `shared`: other goal objects go to the same region (see `_free_spot`); `low`: a move straight away
+    from what the object stood against, carried `LOW_CARRY` above only what lies ahead of it."""
     view = ctx.view
     rot = view.eef_rotation()
     yaw = float(np.arctan2(rot[1, 0], rot[0, 0]) - np.pi / 2)
@@ -315,7 +318,7 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     misplaced = "misplace" in ctx.knobs and isinstance(target, str)
     if misplaced:
         goal_xy = _misplaced_xy(ctx, target, obj, goal_xy)
-    z_carry = carry_height(view, obj, goal_xy)
+    z_carry = carry_height(view, obj, goal_xy, margin=LOW_CARRY, ahead_only=True) if low else carry_height(view, obj, goal_xy)
     carry_rot = upright
     if "tilt" in ctx.knobs and isinstance(target, str):
         carry_rot = _tilt_rotation(ctx, yaw, np.deg2rad(ctx.rng.uniform(40, 60)))
