@@ -213,7 +213,7 @@ HANDLE_ROLL = 0.8
 # Height above the handle at which the hand travels to the drawer before coming down in front of it.
 APPROACH_CLEARANCE = 0.12
 APPROACH_SPEED = 0.8  # of the servo's top speed, for the last 10 cm to the handle
-PULL_SPEED = 0.7  # of the servo's top speed, for the pull
+PULL_SPEED = 1.0  # of the servo's top speed, for the pull
 GRASP_DEPTH = 0.004  # m behind the handle bar's front face where the grip point closes on it
 
 
@@ -262,8 +262,7 @@ def _point_down(ctx: SkillContext, opening: np.ndarray) -> Actions:
     view = ctx.view
     toward_base = view.robot_base_position()[:2] - view.eef_position()[:2]
     back = opening * LET_GO + np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
-    yield from ctx.goto(view.eef_position() + back, view.eef_rotation(), OPEN, tol=0.02, max_steps=40)
-    yield from ctx.goto(view.eef_position(), pitched_down(view.eef_rotation()), OPEN, tol=0.03, rot_tol=TURN_TOL, max_steps=60)
+    yield from ctx.goto(view.eef_position() + back, pitched_down(view.eef_rotation()), OPEN, tol=0.03, rot_tol=TURN_TOL, max_steps=60)
 
 
 # Drawers are pushed shut with the closed fingertips on the front panel, the hand pointing down and

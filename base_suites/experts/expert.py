@@ -18,7 +18,7 @@ from base_suites.experts.control import OPEN
 from base_suites.experts.geometry import handle_pinch
 from base_suites.experts.skills import SkillContext
 
-EXPERT_VERSION = "scripted-10"
+EXPERT_VERSION = "scripted-11"
 KNOBS = ("collide", "drop", "misplace", "tilt", "wrong_order", "jerky", "regrasp")
 # "mixed": every knob possible, most episodes still clean in all but one or two respects.
 MIXED_RATES = {"collide": 0.2, "drop": 0.2, "misplace": 0.15, "tilt": 0.2, "wrong_order": 0.15, "jerky": 0.15, "regrasp": 0.15}
