@@ -253,12 +253,13 @@ TURN_TOL = 0.15  # rad left of the turn back to pointing down when the next skil
 
 
 def _point_down(ctx: SkillContext, opening: np.ndarray) -> Actions:
-    """Back off the handle, rise, back off towards the robot and turn the horizontal hand back to
-    pointing down: done on the way to the next pick, the quarter turn drags the hand off course and
-    into the cabinet; done at full reach (a drawer pulled out far), it stretches the elbow straight,
-    where OSC cannot bend it back. The hand is only tilted down, its wrist kept as the grip left it: a
-    turn about the vertical is the next pick's, which knows its grasp (`hand_down`). The last
-    `TURN_TOL` of the tilt is left to that pick's first move, which turns the hand while it travels."""
+    """Tilt the level hand back to pointing down while it backs off the handle, rises and backs off
+    towards the robot, in one move: done on the way to the next pick, the quarter turn drags the hand
+    off course and into the cabinet; done at full reach (a drawer pulled out far), it stretches the
+    elbow straight, where OSC cannot bend it back. The hand is only tilted down, its wrist kept as the
+    grip left it: a turn about the vertical is the next pick's, which knows its grasp (`hand_down`).
+    The last `TURN_TOL` of the tilt is left to that pick's first move, which turns the hand while it
+    travels."""
     view = ctx.view
     toward_base = view.robot_base_position()[:2] - view.eef_position()[:2]
     back = opening * LET_GO + np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
