@@ -242,13 +242,16 @@ def _handle_grip(view: SimView, opening: np.ndarray) -> np.ndarray:
     """The hand facing the handle, rolled `HANDLE_ROLL` from vertical, or the same grip half a turn
     about the pointing axis (a parallel gripper is symmetric, and the housing sits where it did),
     whichever the hand turns to the shorter way from where it points now: from pointing down one takes
-    ~1.7 rad of turn, the other ~2.6, ~30 steps of OSC turning each way."""
+    ~1.7 rad of turn, the other ~2.6, ~30 steps of OSC turning each way. The wrist (the last joint)
+    holds the half-turned grip at ~2.4 rad in libero_goal's kitchen, whose cabinet faces the robot, and
+    the other one at ~-0.8; with a cabinet turned ~0.5 rad the half-turned grip, still the shorter
+    turn, would reach the joint's 2.9 rad stop, so a scene with one needs the wrist checked here."""
     grips = [_hand_facing(-opening, roll) for roll in (HANDLE_ROLL, HANDLE_ROLL + np.pi)]
     return min(grips, key=lambda grip: float(np.linalg.norm(rotation_error(grip, view.eef_rotation()))))
 
 
-RETREAT = 0.08  # m the hand backs off towards the robot before turning back to pointing down
-LET_GO = 0.08  # m the opened hand first backs off the handle along the drawer's opening direction
+RETREAT = 0.08  # m the hand backs off towards the robot while it turns back to pointing down
+LET_GO = 0.08  # m the opened hand backs off the handle along the drawer's opening direction meanwhile
 TURN_TOL = 0.15  # rad left of the turn back to pointing down when the next skill takes over
 
 
