@@ -52,4 +52,3 @@ def test_the_short_way_round_is_taken_only_when_asked():
     assert np.allclose(short, grasp_rotation(yaw + np.pi))
     assert abs(rotation_error(short, current)[2]) < abs(rotation_error(plain, current)[2])
     assert np.allclose(nearest_grasp_rotation(np.deg2rad(30), current, wrist=0.0, shortest=True), grasp_rotation(np.deg2rad(30)))
-

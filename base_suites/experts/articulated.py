@@ -78,7 +78,7 @@ def _pulled_out(view: SimView, target: str, travel: Callable[[dict], float]) -> 
 
 def opened_footprint(view: SimView, target: str) -> tuple[np.ndarray, np.ndarray] | None:
     """The xy box a drawer covers when pulled out to its end stop (None for doors and knobs)."""
-    pts = _pulled_out(view, target, lambda _info: pulled_short(view, target))
+    pts = _pulled_out(view, target, lambda info: _short_of_stop(view, target, info))
     return None if pts is None else (pts[:, :2].min(axis=0), pts[:, :2].max(axis=0))
 
 
@@ -132,8 +132,11 @@ HOOK_INSIDE = 0.015  # m behind the front panel's inner face (the drawer region'
 def pulled_short(view: SimView, target: str) -> float:
     """How far (m) a drawer stands short of its end stop; 0 for doors and knobs."""
     info = _drawer_joint(view, target)
-    if info is None:
-        return 0.0
+    return 0.0 if info is None else _short_of_stop(view, target, info)
+
+
+def _short_of_stop(view: SimView, target: str, info: dict) -> float:
+    """`pulled_short` from the drawer's slide joint info (`SimView.joint`)."""
     lo, hi = info["range"]
     return abs((hi if view.opening_sign(_fixture(view, target)) > 0 else lo) - info["qpos"])
 
@@ -246,8 +249,9 @@ def _handle_grip(view: SimView, opening: np.ndarray) -> np.ndarray:
     holds the half-turned grip at ~2.4 rad in libero_goal's kitchen, whose cabinet faces the robot, and
     the other one at ~-0.8; with a cabinet turned ~0.5 rad the half-turned grip, still the shorter
     turn, would reach the joint's 2.9 rad stop, so a scene with one needs the wrist checked here."""
+    current = view.eef_rotation()
     grips = [_hand_facing(-opening, roll) for roll in (HANDLE_ROLL, HANDLE_ROLL + np.pi)]
-    return min(grips, key=lambda grip: float(np.linalg.norm(rotation_error(grip, view.eef_rotation()))))
+    return min(grips, key=lambda grip: float(np.linalg.norm(rotation_error(grip, current))))
 
 
 RETREAT = 0.08  # m the hand backs off towards the robot while it turns back to pointing down
