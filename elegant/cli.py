@@ -188,6 +188,8 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--successful-only", action="store_true", help="train on the demos whose episode succeeded (as LIBERO's datasets hold)")
     p.add_argument("--no-task-film", dest="task_film", action="store_false",
                    help="feed the task one-hot at the input only (policies before FiLM task conditioning)")
+    p.add_argument("--obs-noise", type=float, default=0.0,
+                   help="std (normalised units) of Gaussian noise added to input states in training, so the policy learns to steer back")
     p.add_argument("--resume", action="store_true")
 
 
@@ -197,7 +199,7 @@ def _train_policy(args: argparse.Namespace) -> dict:
 
     summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
                            batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk,
-                           successful_only=args.successful_only, task_film=args.task_film,
+                           successful_only=args.successful_only, task_film=args.task_film, obs_noise=args.obs_noise,
                            **({} if args.modes is None else {"modes": args.modes}))
     summary.pop("loss_history", None)
     return summary

@@ -38,6 +38,7 @@ class ChainConfig:
     critic that judges them; JITI then chooses among whole chunks (see `elegant.jiti`). `window`: JITI's
     window in decisions (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
     `policy_successful_only`: the policy clones only the demos that succeeded (the critic still sees all).
+    `policy_obs_noise`: std of the Gaussian noise on the policy's normalised input states in training.
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -60,6 +61,7 @@ class ChainConfig:
     window: int | None = None
     policy_modes: int | None = None
     policy_successful_only: bool = False
+    policy_obs_noise: float = 0.0
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -70,6 +72,8 @@ class ChainConfig:
                 raise UserInputError(f"chain {name} must be >= 1, got {getattr(self, name)}")
         if self.policy_modes is not None and self.policy_modes < 1:
             raise UserInputError(f"chain policy_modes must be >= 1, got {self.policy_modes}")
+        if not self.policy_obs_noise >= 0:
+            raise UserInputError(f"chain policy_obs_noise must be >= 0, got {self.policy_obs_noise}")
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
         from critics.data import REWARDS  # torch loads only when a chain runs
@@ -94,6 +98,7 @@ def add_chain_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--policy-epochs", type=int, default=50)
     parser.add_argument("--policy-modes", type=int, help="components of the BC policy's GMM head (default: train-policy's)")
     parser.add_argument("--successful-only", action="store_true", help="the policy clones only the demos that succeeded")
+    parser.add_argument("--obs-noise", type=float, default=0.0, help="std of the noise on the policy's normalised input states in training")
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy (and of the critic)")
     parser.add_argument("--max-steps", type=int, help="episode horizon (default: the suites')")
     parser.add_argument("--seed", type=int, default=0)
@@ -104,7 +109,7 @@ def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
     return ChainConfig(
         suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
         demos=args.demos, policy_epochs=args.policy_epochs, policy_modes=args.policy_modes,
-        policy_successful_only=args.successful_only, episodes=args.episodes, chunk=args.chunk, max_steps=args.max_steps,
+        policy_successful_only=args.successful_only, policy_obs_noise=args.obs_noise, episodes=args.episodes, chunk=args.chunk, max_steps=args.max_steps,
         seed=args.seed, **fields,
     )
 
@@ -118,7 +123,7 @@ def _check_settings(out: str, cfg: ChainConfig) -> None:
     path = os.path.join(out, "chain.json")
     settings = json.loads(json.dumps(asdict(cfg)))  # tuples as lists, as stored
     # chains written before chunking and before the mixture size was a setting (policies then had 5 components)
-    added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False}
+    added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False, "policy_obs_noise": 0.0}
     changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
     if changed:
         raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
@@ -174,7 +179,8 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
         train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk,
-                     resume=True, progress=progress, successful_only=cfg.policy_successful_only, **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
+                     resume=True, progress=progress, successful_only=cfg.policy_successful_only, obs_noise=cfg.policy_obs_noise,
+                     **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:

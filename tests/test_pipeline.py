@@ -45,6 +45,8 @@ def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
         run_chain(out, ChainConfig(demos=3, critic_steps=20, policy_epochs=1, episodes=1, max_steps=15), progress=False)
     with pytest.raises(UserInputError, match="chain modes"):
         run_chain(out, ChainConfig(modes=("sometimes",)), progress=False)
+    with pytest.raises(UserInputError, match="policy_obs_noise must be >= 0"):
+        run_chain(out, replace(TINY, policy_obs_noise=-0.1), progress=False)
 
 
 def test_a_base_only_chain_trains_no_critic(chain, tmp_path):

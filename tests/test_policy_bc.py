@@ -210,6 +210,8 @@ def test_config_records_inputs_and_versions(policy_dir):
 def test_training_refuses_bad_input(demos, tmp_path):
     with pytest.raises(UserInputError, match="epochs must be a positive integer"):
         train_policy([demos], str(tmp_path / "x"), epochs=0, progress=False)
+    with pytest.raises(UserInputError, match="obs_noise must be >= 0"):
+        train_policy([demos], str(tmp_path / "x"), epochs=1, obs_noise=-0.1, progress=False)
     with pytest.raises(UserInputError, match="non-empty list"):
         train_policy([], str(tmp_path / "x"), epochs=1, progress=False)
     with pytest.raises(UserInputError, match="no such file"):
@@ -234,6 +236,29 @@ def test_chunk_targets_are_the_next_actions_with_the_last_repeated_past_the_end(
     _, targets = windows.batch(torch.tensor([0, 3, 4]))
     expected = np.stack([actions[[0, 1, 2]], actions[[3, 4, 4]], actions[[4, 4, 4]]]).reshape(3, 21)
     np.testing.assert_array_equal(targets.numpy(), expected)
+
+
+def test_observation_noise_jitters_only_the_states_a_task_has_and_is_seeded():
+    from annotations import TaskFeatureEncoder
+    from elegant.policies.bc_data import DemoSet, Episode
+    from elegant.policies.bc_features import BCFeatures
+    from elegant.policies.bc_train import _Windows
+
+    # libero_object/1 has 5 state dims, padded to the 8 of libero_object/0
+    data = DemoSet(LAYOUTS, [Episode("libero_object/0", np.zeros((4, 8)), np.zeros((4, 7), np.float32)),
+                             Episode("libero_object/1", np.zeros((4, 5)), np.zeros((4, 7), np.float32))])
+    stats = {k: {"mean": np.zeros(sum(s for _, s in v)), "std": np.ones(sum(s for _, s in v))} for k, v in LAYOUTS.items()}
+    windows = _Windows(data, BCFeatures(TaskFeatureEncoder(LAYOUTS), stats, history=2))
+    index = torch.arange(8)
+    clean, _ = windows.batch(index)
+    noisy, _ = windows.batch(index, 0.5, torch.Generator().manual_seed(0))
+    again, _ = windows.batch(index, 0.5, torch.Generator().manual_seed(0))
+    torch.testing.assert_close(noisy, again)
+    states = (noisy - clean)[:, :16].reshape(8, 2, 8)  # (sample, history, state slot)
+    assert (states[:4] != 0).all()  # every slot of the full layout, in both history states
+    assert (states[4:, :, :5] != 0).all() and (states[4:, :, 5:] == 0).all()  # padding stays zero
+    assert 0.3 < states[:4].std().item() < 0.7
+    torch.testing.assert_close(noisy[:, 16:], clean[:, 16:])  # the task one-hot is never jittered
 
 
 def test_a_chunked_policy_decides_every_chunk_steps_and_still_fits_the_expert(demos, tmp_path):

@@ -56,6 +56,7 @@ class BCConfig:
     grad_clip: float = 100.0
     chunk: int = 1
     task_film: bool = True
+    obs_noise: float = 0.0
 
     def validate(self) -> None:
         positive = {"epochs": self.epochs, "history": self.history, "batch_size": self.batch_size, "modes": self.modes, "chunk": self.chunk}
@@ -64,7 +65,7 @@ class BCConfig:
                 raise UserInputError(f"train_policy: {name} must be a positive integer, got {value!r}")
         if not self.hidden or any(int(h) != h or h < 1 for h in self.hidden):
             raise UserInputError(f"train_policy: hidden must be positive layer widths, got {self.hidden!r}")
-        for name in ("lr", "weight_decay", "grad_clip"):
+        for name in ("lr", "weight_decay", "grad_clip", "obs_noise"):
             if not getattr(self, name) >= 0:
                 raise UserInputError(f"train_policy: {name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("min_std", "obs_min_std"):
@@ -89,6 +90,9 @@ class _Windows:
             ends.append(np.full(len(episode.states), offset + len(episode.states) - 1))
             offset += len(episode.states)
         self.encoded = torch.from_numpy(np.concatenate(encoded))
+        widths = torch.tensor([sum(size for _, size in data.layouts[e.task]) for e in data.episodes])
+        lengths = torch.tensor([len(e.states) for e in data.episodes])
+        self.state_mask = torch.arange(features.state_dim) < widths.repeat_interleave(lengths)[:, None]
         self.starts = torch.from_numpy(np.concatenate(starts))
         self.ends = torch.from_numpy(np.concatenate(ends))
         self.actions = torch.from_numpy(np.concatenate([e.actions for e in data.episodes]))
@@ -99,10 +103,15 @@ class _Windows:
     def __len__(self) -> int:
         return len(self.actions)
 
-    def batch(self, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def batch(self, index: torch.Tensor, noise: float = 0.0, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         rows = torch.maximum(index[:, None] - self.back, self.starts[index][:, None])
         targets = torch.minimum(index[:, None] + self.ahead, self.ends[index][:, None])
-        return self.features.flatten_window(self.encoded[rows]), self.actions[targets].flatten(1)
+        window = self.encoded[rows]
+        if noise > 0:
+            jitter = torch.randn(window[..., : self.features.state_dim].shape, generator=generator) * noise
+            window = window.clone()
+            window[..., : self.features.state_dim] += jitter * self.state_mask[rows]
+        return self.features.flatten_window(window), self.actions[targets].flatten(1)
 
 
 def _save_checkpoint(path: str, state: dict[str, Any]) -> None:
@@ -115,7 +124,8 @@ def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
     except Exception as exc:  # a truncated or foreign file surfaces as many exception types
         raise UserInputError(f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume") from None
     # checkpoints from before the success filter trained on every demo
-    changed = changed_fields(state.get("fingerprint") if isinstance(state, dict) else None, fingerprint, added={"successful_only": False})
+    changed = changed_fields(state.get("fingerprint") if isinstance(state, dict) else None, fingerprint,
+                             added={"successful_only": False, "config": {"obs_noise": 0.0}})
     if changed:
         key, was, now = changed[0]
         raise UserInputError(f"{path}: cannot resume, field {key!r} was {was!r} and is now {now!r}")
@@ -188,6 +198,7 @@ def train_policy(
     grad_clip: float = 100.0,
     chunk: int = 1,
     task_film: bool = True,
+    obs_noise: float = 0.0,
     progress: bool = True,
     on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
     tasks: Sequence[str] | None = None,
@@ -213,9 +224,11 @@ def train_policy(
     `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
     resumed checkpoint must match. `successful_only`: train on the successful demos only (see
     `load_demos`); the data a checkpoint records then counts only those. `task_film`: the task one-hot
-    also modulates every hidden layer (see `BCNet`); off, it enters at the input only.
+    also modulates every hidden layer (see `BCNet`); off, it enters at the input only. `obs_noise`: the
+    std, in normalised units, of Gaussian noise added to the input states during training (see `_Windows`).
     """
-    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip, chunk, task_film)
+    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip, chunk, task_film,
+                   obs_noise)
     cfg.validate()
     snapshots = set(snapshot_epochs)
     if any(int(e) != e or not 0 <= e <= cfg.epochs for e in snapshots):
@@ -276,7 +289,7 @@ def train_policy(
     for epoch in range(start_epoch, cfg.epochs):
         total = 0.0
         for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
-            x, actions = windows.batch(index)
+            x, actions = windows.batch(index, cfg.obs_noise, generator)
             loss = net.nll(x, actions).mean()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
