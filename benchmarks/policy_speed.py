@@ -3,7 +3,7 @@
 Targets: one action for one observation <= 1 ms; 16 candidates via `sample` (right after the action, as
 JITI asks at a critical moment) <= 2 ms. The policy is trained for one epoch by `train_policy` on a
 synthetic dataset whose state layout has the size of a LIBERO scene (robot proprioception plus
-`--objects` object poses), with the default network (history 10, 256x256 trunk, 5 modes); latency does
+`--objects` object poses), with the default network (history 10, 256x256 trunk, 16 modes); latency does
 not depend on what the weights learned. Also reports the bare network forward and the adapter overhead
 of wrapping a trivial callable, for comparison. Prints one JSON object on its last line (ratio =
 median / target; <= 1 meets the target).  Usage: python benchmarks/policy_speed.py [--repeats 2000]
