@@ -19,7 +19,11 @@ Choices made here, each for a reason:
   reward: along a consistent trajectory Q_t - Q_{t+1} = r_t - (1 - gamma) Q_{t+1} lies in [-1, 1]
   (r in [0, 1], Q <= 1 / (1 - gamma)) and is far smaller while the reward is steady, so a deviation of
   more than 1 from the recent level marks an event rather than drift.
-- Ties in the argmax go to candidate 0, the base action: JITI never overrides without a reason.
+- Ties in the argmax go to candidate 0, the base action: JITI never overrides without a reason. With
+  `min_gain` > 0 the best candidate must also beat the base action's score by more than `min_gain`: a
+  critic's scores of actions a few millimetres apart differ by its noise (with the libero_goal critic
+  the median gain of a chosen alternative was 0.01, on returns in [-10, 0]), and an override on noise
+  is a random perturbation of a policy whose elegant executions are fragile.
 - Candidates: the base policy is adapted with `elegant.policies.as_policy`, so they come from its own
   `sample(obs, N)` when it has one (GMM, diffusion noise, a stochastic TorchRL module) and otherwise
   from the adapter's seeded Gaussian perturbations of a_t, clipped to the action bounds. Candidate 0
@@ -147,10 +151,12 @@ def eligible_candidates(distance: np.ndarray, trust_radius: float | None) -> np.
     return np.ones(distance.shape, dtype=bool) if trust_radius is None else distance <= trust_radius
 
 
-def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: float | None) -> int:
+def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: float | None, min_gain: float = 0.0) -> int:
     """Index of the best-scored eligible candidate (`eligible_candidates`); the first maximum, so the base
-    action wins ties and JITI never overrides without a reason."""
-    return int(np.argmax(np.where(eligible_candidates(distance, trust_radius), scores, -np.inf)))
+    action wins ties and JITI never overrides without a reason. The base action (0) is also kept unless
+    the best one scores more than `min_gain` above it."""
+    best = int(np.argmax(np.where(eligible_candidates(distance, trust_radius), scores, -np.inf)))
+    return best if scores[best] - scores[0] > min_gain else 0
 
 
 def _choice_rng(seed: int) -> np.random.Generator:
@@ -185,6 +191,7 @@ class JITI:
         seed: int = 0,
         trust_radius: float | None = None,
         random_rate: float = 0.1,
+        min_gain: float = 0.0,
     ) -> None:
         if mode not in MODES:
             raise unknown_choice("JITI mode", mode, MODES)
@@ -200,6 +207,8 @@ class JITI:
             raise UserInputError(f"JITI trust_radius must be > 0 (or None for no limit), got {trust_radius}")
         if critic is None and mode not in ("base", "random"):
             raise UserInputError(f"JITI mode {mode!r} needs a critic; only modes 'base' and 'random' run without one")
+        if not float(min_gain) >= 0:
+            raise UserInputError(f"JITI min_gain must be >= 0, got {min_gain}")
         if not 0.0 <= float(random_rate) <= 1.0:
             raise UserInputError(f"JITI random_rate must lie in [0, 1], got {random_rate}")
         self.policy = as_policy(policy, noise_scale=noise_scale, seed=seed)
@@ -217,6 +226,7 @@ class JITI:
         # critic trained on a few demos ranks far-off samples (another GMM mode, a gripper flip) badly.
         self.trust_radius = None if trust_radius is None else float(trust_radius)
         self.random_rate = float(random_rate)
+        self.min_gain = float(min_gain)
         self._rng = _choice_rng(seed)  # mode "random": when and what to choose
         self._scores: deque[float] = deque(maxlen=self.window)
         self._queue: deque[np.ndarray] = deque()
@@ -234,6 +244,7 @@ class JITI:
             "noise_scale": self.noise_scale,
             "trust_radius": self.trust_radius,
             "random_rate": self.random_rate,
+            "min_gain": self.min_gain,
             "chunk": self.chunk,
             "policy_adapter": type(self.policy).__name__,
         }
@@ -287,7 +298,7 @@ class JITI:
         chosen, chosen_q, executed, distance = 0, q, plan, None
         if candidates is not None:
             distance = plan_distance(candidates)
-            chosen = self._random_choice(distance) if self.mode == "random" else choose_candidate(scores_c, distance, self.trust_radius)
+            chosen = self._random_choice(distance) if self.mode == "random" else choose_candidate(scores_c, distance, self.trust_radius, self.min_gain)
             executed = candidates[chosen]
             chosen_q = None if scores_c is None else float(scores_c[chosen])
         if chosen_q is not None:

@@ -233,6 +233,18 @@ def test_trust_radius_keeps_far_candidates_out_of_the_choice():
         JITI(SamplingPolicy(), PreferPositive(), trust_radius=0.0)
 
 
+def test_min_gain_keeps_the_base_action_unless_the_best_candidate_beats_it_by_more():
+    # candidates score base_q + k / 100: the best of 16 gains 0.15 over the base action
+    small = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), mode="always", min_gain=0.1)
+    large = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), mode="always", min_gain=0.2)
+    rollout(small, 4), rollout(large, 4)
+    assert [d.chosen for d in small.log] == [15] * 4
+    assert [d.chosen for d in large.log] == [0] * 4 and all(d.chosen_q == 5.0 for d in large.log)
+    assert large.config()["min_gain"] == 0.2
+    with pytest.raises(UserInputError, match="min_gain"):
+        JITI(SamplingPolicy(), ScriptedCritic([]), min_gain=-0.1)
+
+
 class ChunkPolicy:
     """Decides 3 actions at a time: row i of a plan is BASE with a[1] = i / 10 (its place in the chunk);
     candidate k of `sample_plans` has a[0] = k / 100 on every row. Records where it planned and observed."""
