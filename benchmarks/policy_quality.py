@@ -6,7 +6,7 @@ with the base mode only, so no critic is trained; its directory resumes (rerun t
 interruption). Every suite's demos train one policy, with the task as a one-hot input.
 
     python benchmarks/policy_quality.py --out runs/policy [--suites libero_object,libero_goal] [--demos 50]
-        [--episodes 50] [--policy-epochs 50] [--tasks 0,1] [--seed 0] [--successful-only]
+        [--episodes 50] [--policy-epochs 50] [--tasks 0,1] [--seed 0] [--successful-only] [--obs-noise 0.1]
 
 Prints the table per task and suite, then one JSON object on its last line.
 """
