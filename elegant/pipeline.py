@@ -109,8 +109,8 @@ def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
     return ChainConfig(
         suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
         demos=args.demos, policy_epochs=args.policy_epochs, policy_modes=args.policy_modes,
-        policy_successful_only=args.successful_only, policy_obs_noise=args.obs_noise, episodes=args.episodes, chunk=args.chunk, max_steps=args.max_steps,
-        seed=args.seed, **fields,
+        policy_successful_only=args.successful_only, policy_obs_noise=args.obs_noise, episodes=args.episodes, chunk=args.chunk,
+        max_steps=args.max_steps, seed=args.seed, **fields,
     )
 
 

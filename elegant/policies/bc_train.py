@@ -90,9 +90,9 @@ class _Windows:
             ends.append(np.full(len(episode.states), offset + len(episode.states) - 1))
             offset += len(episode.states)
         self.encoded = torch.from_numpy(np.concatenate(encoded))
-        widths = torch.tensor([sum(size for _, size in data.layouts[e.task]) for e in data.episodes])
-        lengths = torch.tensor([len(e.states) for e in data.episodes])
-        self.state_mask = torch.arange(features.state_dim) < widths.repeat_interleave(lengths)[:, None]
+        # state slots each row's task fills (the rest is padding): where observation noise may go
+        self.widths = torch.tensor([sum(size for _, size in data.layouts[e.task]) for e in data.episodes]).repeat_interleave(
+            torch.tensor([len(e.states) for e in data.episodes]))
         self.starts = torch.from_numpy(np.concatenate(starts))
         self.ends = torch.from_numpy(np.concatenate(ends))
         self.actions = torch.from_numpy(np.concatenate([e.actions for e in data.episodes]))
@@ -106,11 +106,11 @@ class _Windows:
     def batch(self, index: torch.Tensor, noise: float = 0.0, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         rows = torch.maximum(index[:, None] - self.back, self.starts[index][:, None])
         targets = torch.minimum(index[:, None] + self.ahead, self.ends[index][:, None])
-        window = self.encoded[rows]
+        window = self.encoded[rows]  # advanced indexing: a copy, safe to jitter in place
         if noise > 0:
-            jitter = torch.randn(window[..., : self.features.state_dim].shape, generator=generator) * noise
-            window = window.clone()
-            window[..., : self.features.state_dim] += jitter * self.state_mask[rows]
+            dim = self.features.state_dim
+            filled = torch.arange(dim) < self.widths[rows][..., None]
+            window[..., :dim] += torch.randn(window[..., :dim].shape, generator=generator) * noise * filled
         return self.features.flatten_window(window), self.actions[targets].flatten(1)
 
 
