@@ -152,3 +152,24 @@ def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(run
     del config["init_states"], config["jiti"]["chunk"], config["jiti"]["random_rate"]
     (out / "config.json").write_text(json.dumps(config))
     assert run(out, resume=True)["episodes"] == 2
+
+
+def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_path):
+    """Each JITI setting has its own `elegant eval` flag and reaches `evaluate` under its own name; a flag
+    left out is not passed, so the run keeps JITI's default."""
+    import elegant.evaluation
+    from elegant.cli import main
+    from elegant.evaluation import JITI_SETTINGS
+
+    calls = []
+    monkeypatch.setattr(elegant.evaluation, "evaluate", lambda *args, **kwargs: calls.append(kwargs) or {})
+    flags = {"window": ("--window", "7", 7), "threshold": ("--threshold", "1.5", 1.5), "threshold_mode": ("--threshold-mode", "std", "std"),
+             "n_candidates": ("--candidates", "8", 8), "noise_scale": ("--noise-scale", "0.2", 0.2),
+             "trust_radius": ("--trust-radius", "0.4", 0.4), "random_rate": ("--random-rate", "0.3", 0.3),
+             "min_gain": ("--min-gain", "0.05", 0.05)}
+    assert set(flags) == set(JITI_SETTINGS)
+    common = ["eval", "--suite", SUITE, "--policy", "p", "--out", str(tmp_path / "run")]
+    assert main(common + [a for flag, text, _ in flags.values() for a in (flag, text)]) == 0
+    assert calls[-1]["jiti_kwargs"] == {name: value for name, (_, _, value) in flags.items()}
+    assert main(common + ["--min-gain", "0.05"]) == 0
+    assert calls[-1]["jiti_kwargs"] == {"min_gain": 0.05}

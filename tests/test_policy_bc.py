@@ -222,6 +222,24 @@ def test_training_refuses_bad_input(demos, tmp_path):
         train_policy([demos, clash], str(tmp_path / "x"), epochs=1, progress=False)
 
 
+def test_train_policy_cli_passes_its_options_and_refuses_in_one_line(tmp_path, capsys):
+    from elegant.cli import main
+
+    data = write_demos(tmp_path / "mixed.hdf5", demos_per_task=3, steps=6, failures=1)
+    out = tmp_path / "cli"
+    args = ["train-policy", data, "--out", str(out), "--epochs", "1", "--seed", "3", "--history", "2", "--modes", "2",
+            "--chunk", "2", "--successful-only", "--no-task-film", "--obs-noise", "0.1"]
+    assert main(args) == 0
+    training = json.load(open(out / "config.json"))["training"]
+    config = training["config"]
+    assert (config["seed"], config["history"], config["modes"], config["chunk"], config["obs_noise"]) == (3, 2, 2, 2, 0.1)
+    assert config["task_film"] is False and training["successful_only"] is True
+    assert training["num_samples"] == 2 * 2 * 6  # the failed demo of each task was left out
+    capsys.readouterr()
+    assert main(["train-policy", data, "--out", str(tmp_path / "bad"), "--obs-noise", "-1"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == ["elegant train-policy: error: train_policy: obs_noise must be >= 0, got -1.0"]
+
+
 def test_chunk_targets_are_the_next_actions_with_the_last_repeated_past_the_end():
     from annotations import TaskFeatureEncoder
     from elegant.policies.bc_data import DemoSet, Episode
