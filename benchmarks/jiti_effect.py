@@ -7,6 +7,7 @@ in every mode. The chain directory resumes (rerun the same command after an inte
 
     python benchmarks/jiti_effect.py --out runs/effect [--suites libero_object,libero_goal] [--demos 50]
         [--episodes 50] [--critic-steps 20000] [--policy-epochs 50] [--tasks 0,1] [--threshold 2 --threshold-mode std]
+        [--chunk 8 --critic-rollouts 50 --critic-backup dataset]
 
 Prints the table per suite, then one JSON object on its last line.
 """
@@ -53,11 +54,17 @@ def main() -> None:
     parser.add_argument("--threshold", type=float, default=2.0)
     parser.add_argument("--threshold-mode", choices=("absolute", "std"), default="std")
     parser.add_argument("--window", type=int, help="JITI's window in decisions (default: JITI's)")
+    parser.add_argument("--critic-rollouts", type=int, default=0,
+                        help="exploring rollouts per task of the trained policy added to the critic's data (from the first half of the init "
+                             "states; every mode is then evaluated from the second half)")
+    parser.add_argument("--rollout-explore", type=float, default=0.3, help="fraction of the rollouts' decisions given a random candidate")
+    parser.add_argument("--critic-backup", default="policy", help="policy (Cal-QL's) or dataset (in-sample)")
     args = parser.parse_args()
     config = chain_config(
         args, modes=("base", "always", "jiti"), critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
         critic_cql_weight=args.critic_cql_weight, critic_reward=args.critic_reward, trust_radius=args.trust_radius,
-        threshold=args.threshold, threshold_mode=args.threshold_mode, window=args.window,
+        threshold=args.threshold, threshold_mode=args.threshold_mode, window=args.window, critic_rollouts=args.critic_rollouts,
+        rollout_explore=args.rollout_explore, critic_backup=args.critic_backup,
     )
     result = run_chain(args.out, config)
     table = verdicts(result)

@@ -1,8 +1,9 @@
 """The whole chain, resumable step by step: the quickstart and the effect benchmark are two sizes of it.
 
-demos (scripted expert, mixed quality, per suite) -> annotate (ITC labels) -> train critic (Cal-QL, on
-every suite's annotated demos) -> train policy (BC, on every suite's demos) -> evaluate each mode on
-identical starts, per suite -> side-by-side report. Each step writes its output atomically and is
+demos (scripted expert, mixed quality, per suite) -> annotate (ITC labels) -> train policy (BC, on every
+suite's demos) -> [the policy's own exploring rollouts, annotated] -> train critic (Cal-QL, on every
+suite's annotated demos and rollouts) -> evaluate each mode on identical starts, per suite -> side-by-side
+report. Each step writes its output atomically and is
 skipped when that output already exists, so an interrupted chain continues where it stopped; a chain
 directory refuses to continue under other settings.
 """
@@ -39,6 +40,12 @@ class ChainConfig:
     window in decisions (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
     `policy_successful_only`: the policy clones only the demos that succeeded (the critic still sees all).
     `policy_obs_noise`: std of the Gaussian noise on the policy's normalised input states in training.
+    `critic_rollouts`: episodes per task of the trained policy, with a random candidate within the trust
+    radius at a `rollout_explore` fraction of its decisions (`elegant rollouts`), added to the critic's
+    data, so it sees the policy's own mistakes and what its alternatives lead to. The rollouts then start
+    from the first half of each task's init states and every evaluation from the second half, so no
+    evaluated start was seen in training. `critic_backup`: the TD target's next action, "policy" (Cal-QL's)
+    or "dataset" (in-sample; with the rollouts it values the alternatives they tried).
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -62,6 +69,9 @@ class ChainConfig:
     policy_modes: int | None = None
     policy_successful_only: bool = False
     policy_obs_noise: float = 0.0
+    critic_rollouts: int = 0
+    rollout_explore: float = 0.3
+    critic_backup: str = "policy"
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -74,12 +84,18 @@ class ChainConfig:
             raise UserInputError(f"chain policy_modes must be >= 1, got {self.policy_modes}")
         if not self.policy_obs_noise >= 0:
             raise UserInputError(f"chain policy_obs_noise must be >= 0, got {self.policy_obs_noise}")
+        if self.critic_rollouts < 0:
+            raise UserInputError(f"chain critic_rollouts must be >= 0, got {self.critic_rollouts}")
+        if not 0.0 <= self.rollout_explore <= 1.0:
+            raise UserInputError(f"chain rollout_explore must lie in [0, 1], got {self.rollout_explore}")
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
-        from critics.data import REWARDS  # torch loads only when a chain runs
+        from critics import BACKUPS, REWARDS  # torch loads only when a chain runs
 
         if self.critic_reward not in REWARDS:
             raise unknown_choice("chain critic_reward", self.critic_reward, REWARDS)
+        if self.critic_backup not in BACKUPS:
+            raise unknown_choice("chain critic_backup", self.critic_backup, BACKUPS)
 
     def jiti_settings(self, mode: str) -> dict[str, Any] | None:
         if mode == "base":
@@ -123,11 +139,26 @@ def _check_settings(out: str, cfg: ChainConfig) -> None:
     path = os.path.join(out, "chain.json")
     settings = json.loads(json.dumps(asdict(cfg)))  # tuples as lists, as stored
     # chains written before chunking and before the mixture size was a setting (policies then had 5 components)
-    added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False, "policy_obs_noise": 0.0}
+    added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False, "policy_obs_noise": 0.0,
+             "critic_rollouts": 0, "rollout_explore": 0.3, "critic_backup": "policy"}
     changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
     if changed:
         raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
     atomic_write(path, json.dumps(settings, indent=2))
+
+
+def _init_split(cfg: ChainConfig) -> tuple[list[int] | None, list[int] | None]:
+    """(rollout starts, evaluation starts): the first and second half of the init states every chosen task
+    has, when the critic learns from rollouts; (None, None), all starts for the evaluation, otherwise."""
+    if not cfg.critic_rollouts:
+        return None, None
+    from base_suites import get_task, list_tasks
+
+    specs = [get_task(s, t) for s in cfg.suites for t in cfg.tasks] if cfg.tasks is not None else [x for s in cfg.suites for x in list_tasks(s)]
+    shared = min(spec.n_init_states for spec in specs)
+    if shared < 2:
+        raise UserInputError(f"chain critic_rollouts: a task has {shared} init state, too few to keep rollout and evaluation starts apart")
+    return list(range(shared // 2)), list(range(shared // 2, shared))
 
 
 def _pooled(summaries: list[dict[str, Any]]) -> dict[str, float]:
@@ -149,6 +180,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     from elegant.evaluation import evaluate
     from elegant.policies import train_policy
     from elegant.report import compare_runs
+    from elegant.rollouts import collect_rollouts
 
     cfg = config
     cfg.validate()
@@ -157,7 +189,10 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     tasks = list(cfg.tasks) if cfg.tasks is not None else None
     demos = {s: os.path.join(out, f"demos_{s}.hdf5") for s in cfg.suites}
     annotated = {s: os.path.join(out, f"annotated_{s}.hdf5") for s in cfg.suites}
+    rollouts = {s: os.path.join(out, f"rollouts_{s}.hdf5") for s in cfg.suites}
+    annotated_rollouts = {s: os.path.join(out, f"annotated_rollouts_{s}.hdf5") for s in cfg.suites}
     critic_dir, policy_dir = os.path.join(out, "critic"), os.path.join(out, "policy")
+    rollout_starts, eval_starts = _init_split(cfg)
     runs = {m: {s: os.path.join(out, f"eval_{m}_{s}") for s in cfg.suites} for m in cfg.modes}
 
     def say(step: str) -> None:
@@ -171,16 +206,27 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
         if not os.path.exists(annotated[suite]):
             say(f"annotate {suite}: ITC labels by replaying the demos in the simulator")
             annotate_file(demos[suite], annotated[suite], resume=True, progress=progress)
-    needs_critic = any(m != "base" for m in cfg.modes)  # base alone (the policy benchmark) only logs its scores
-    if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
-        say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
-        train_critic(list(annotated.values()), critic_dir, steps=cfg.critic_steps, seed=cfg.seed, gamma=cfg.critic_gamma,
-                     cql_weight=cfg.critic_cql_weight, reward=cfg.critic_reward, chunk=cfg.chunk, resume=True, progress=progress)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
         train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk,
                      resume=True, progress=progress, successful_only=cfg.policy_successful_only, obs_noise=cfg.policy_obs_noise,
                      **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
+    needs_critic = any(m != "base" for m in cfg.modes)  # base alone (the policy benchmark) only logs its scores
+    critic_data = list(annotated.values())
+    for suite in cfg.suites if needs_critic and cfg.critic_rollouts else ():
+        if not os.path.exists(rollouts[suite]):
+            say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, exploring at {cfg.rollout_explore:.0%} of decisions")
+            collect_rollouts(suite, tasks, policy_dir, cfg.critic_rollouts, rollouts[suite], explore=cfg.rollout_explore,
+                             trust_radius=cfg.trust_radius, init_states=rollout_starts, seed=cfg.seed, max_steps=cfg.max_steps,
+                             resume=True, progress=progress)
+        if not os.path.exists(annotated_rollouts[suite]):
+            say(f"annotate the rollouts of {suite}")
+            annotate_file(rollouts[suite], annotated_rollouts[suite], resume=True, progress=progress)
+        critic_data.append(annotated_rollouts[suite])
+    if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
+        say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
+        train_critic(critic_data, critic_dir, steps=cfg.critic_steps, seed=cfg.seed, gamma=cfg.critic_gamma, cql_weight=cfg.critic_cql_weight,
+                     reward=cfg.critic_reward, chunk=cfg.chunk, backup=cfg.critic_backup, resume=True, progress=progress)
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:
@@ -188,7 +234,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
             summaries[mode][suite] = evaluate(
                 suite, tasks, policy_dir, critic_dir if needs_critic else None, mode=mode, episodes=cfg.episodes,
                 seed=cfg.seed, out=runs[mode][suite], resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode),
-                max_steps=cfg.max_steps,
+                max_steps=cfg.max_steps, init_states=eval_starts,
             )
     report_dir = os.path.join(out, "report")
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)

@@ -1,6 +1,7 @@
 """The chain behind `elegant quickstart` and the effect benchmark, at tiny sizes on the real simulator."""
 import json
 import os
+import shutil
 from dataclasses import replace
 
 import pytest
@@ -11,6 +12,13 @@ from elegant.pipeline import ChainConfig, run_chain
 pytestmark = pytest.mark.sim
 
 TINY = ChainConfig(demos=2, critic_steps=20, policy_epochs=1, episodes=1, max_steps=15)
+
+
+def copy_data_and_policy(source: str, target) -> None:
+    """Start a chain directory from another's demos and policy (their steps are then skipped)."""
+    for name in ("demos_libero_object.hdf5", "annotated_libero_object.hdf5"):
+        shutil.copy(os.path.join(source, name), os.path.join(target, name))
+    shutil.copytree(os.path.join(source, "policy"), os.path.join(target, "policy"))
 
 
 @pytest.fixture(scope="module")
@@ -52,14 +60,35 @@ def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
 def test_a_base_only_chain_trains_no_critic(chain, tmp_path):
     """The policy benchmark's chain: the data and policy steps are skipped when their outputs exist, and
     with the base mode alone no critic is trained and the evaluation runs without one."""
-    import shutil
-
-    source, _ = chain
-    for name in ("demos_libero_object.hdf5", "annotated_libero_object.hdf5"):
-        shutil.copy(os.path.join(source, name), tmp_path / name)
-    shutil.copytree(os.path.join(source, "policy"), tmp_path / "policy")
+    copy_data_and_policy(chain[0], tmp_path)
     result = run_chain(str(tmp_path), replace(TINY, modes=("base",)), progress=False)
     assert not os.path.exists(tmp_path / "critic")
     summary = json.load(open(os.path.join(result["runs"]["base"]["libero_object"], "summary.json")))
     assert summary["config"]["critic"] is None and summary["episodes"] == 1
     assert set(result) >= {"base", "per_suite"} and "jiti" not in result
+
+
+def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_starts(chain, tmp_path):
+    """With `critic_rollouts` the trained policy's exploring episodes are recorded from the first half of
+    the init states, annotated and added to the critic's data (with the chosen backup); every mode is then
+    evaluated from the second half only."""
+    import h5py
+
+    copy_data_and_policy(chain[0], tmp_path)
+    cfg = replace(TINY, critic_rollouts=2, rollout_explore=0.5, critic_backup="dataset", trust_radius=None)
+    result = run_chain(str(tmp_path), cfg, progress=False)
+    rollouts = str(tmp_path / "rollouts_libero_object.hdf5")
+    training = json.load(open(tmp_path / "critic" / "critic.json"))["training"]
+    assert training["backup"] == "dataset"
+    assert [os.path.basename(p) for p in training["paths"]] == ["annotated_libero_object.hdf5", "annotated_rollouts_libero_object.hdf5"]
+    with h5py.File(rollouts) as f:
+        starts = sorted(int(f["data"][d].attrs["init_state_index"]) for d in f["data"])
+        explored = [len(f["data"][d].attrs["explored_steps"]) for d in f["data"]]
+    assert len(starts) == 2 and max(starts) < 25 and sum(explored) > 0
+    for mode in ("base", "jiti"):
+        config = json.load(open(os.path.join(result["runs"][mode]["libero_object"], "config.json")))
+        assert config["init_states"] == list(range(25, 50))
+    with pytest.raises(UserInputError, match="critic_backup"):
+        run_chain(str(tmp_path / "other"), replace(cfg, critic_backup="mine"), progress=False)
+    with pytest.raises(UserInputError, match="other settings \\(critic_rollouts\\)"):
+        run_chain(str(tmp_path), replace(cfg, critic_rollouts=3), progress=False)
