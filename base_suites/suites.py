@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -112,6 +113,11 @@ def _count_init_states(init_file: str) -> int:
     with np.load(npz) as data:
         key = data.files[0]
         return int(data[key].shape[0])
+
+
+def task_specs(suite: str, tasks: Sequence[int | str] | None = None) -> list[TaskSpec]:
+    """The chosen tasks of a suite (by index or name), or all of them for None."""
+    return list_tasks(suite) if tasks is None else [get_task(suite, t) for t in tasks]
 
 
 def get_task(suite: str, task: int | str) -> TaskSpec:

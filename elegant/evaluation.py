@@ -27,7 +27,7 @@ import numpy as np
 from tqdm import tqdm
 
 from annotations.format import task_key
-from base_suites import UserInputError, get_task, list_tasks, make_env
+from base_suites import UserInputError, make_env, task_specs
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
 from base_suites.seeds import derive_seed
 from elegant.jiti import JITI
@@ -210,7 +210,7 @@ def evaluate(
         raise UserInputError(f"jiti settings {unknown} unknown; expected some of: {', '.join(JITI_SETTINGS)}")
     if critic is not None and obs == "rgb":
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
-    specs = [get_task(suite, t) for t in tasks] if tasks is not None else list_tasks(suite)
+    specs = task_specs(suite, tasks)
     for spec in specs:
         check_init_states(init_states, spec.n_init_states)
     indices = list(dict.fromkeys(spec.index for spec in specs))

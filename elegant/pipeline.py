@@ -152,9 +152,9 @@ def _init_split(cfg: ChainConfig) -> tuple[list[int] | None, list[int] | None]:
     has, when the critic learns from rollouts; (None, None), all starts for the evaluation, otherwise."""
     if not cfg.critic_rollouts:
         return None, None
-    from base_suites import get_task, list_tasks
+    from base_suites import task_specs
 
-    specs = [get_task(s, t) for s in cfg.suites for t in cfg.tasks] if cfg.tasks is not None else [x for s in cfg.suites for x in list_tasks(s)]
+    specs = [spec for suite in cfg.suites for spec in task_specs(suite, cfg.tasks)]
     shared = min(spec.n_init_states for spec in specs)
     if shared < 2:
         raise UserInputError(f"chain critic_rollouts: a task has {shared} init state, too few to keep rollout and evaluation starts apart")
@@ -213,7 +213,8 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
                      **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
     needs_critic = any(m != "base" for m in cfg.modes)  # base alone (the policy benchmark) only logs its scores
     critic_data = list(annotated.values())
-    for suite in cfg.suites if needs_critic and cfg.critic_rollouts else ():
+    rollout_suites = cfg.suites if needs_critic and cfg.critic_rollouts else ()
+    for suite in rollout_suites:
         if not os.path.exists(rollouts[suite]):
             say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, exploring at {cfg.rollout_explore:.0%} of decisions")
             collect_rollouts(suite, tasks, policy_dir, cfg.critic_rollouts, rollouts[suite], explore=cfg.rollout_explore,
