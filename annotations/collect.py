@@ -14,7 +14,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from annotations.dataset import Demo, DemoWriter
-from base_suites import get_task, make_env
+from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
 from base_suites.atomic import changed_fields
 from base_suites.errors import UserInputError
@@ -73,7 +73,7 @@ def collect_episodes(
     progress: bool = True,
     desc: str = "episodes",
 ) -> str:
-    """Roll `source` out `episodes` times per task (None: all ten) and write them to `out` in the demo
+    """Roll `source` out `episodes` times per task (None: every task of the suite) and write them to `out` in the demo
     layout: appended to `out.partial` as each finishes, renamed to `out` when all are there; `resume`
     continues an interrupted file, only with the same `settings` (what determines the episodes: stored
     in the file's `collection` attribute). `horizon(spec)` is each task's episode limit. Returns the path."""
@@ -81,7 +81,7 @@ def collect_episodes(
 
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
-    specs = [get_task(suite, t) for t in (tasks if tasks is not None else range(10))]
+    specs = task_specs(suite, tasks)
     collection = json.loads(json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings}))
     writer: DemoWriter | None = None
     bar = tqdm(total=len(specs) * episodes, desc=f"{desc} {suite}", disable=not progress, unit="ep")

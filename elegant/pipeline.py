@@ -25,7 +25,7 @@ MODES = ("base", "always", "jiti")
 class ChainConfig:
     """Which tasks, how much data and training, which JITI modes to compare.
 
-    `tasks` are indices applied to every suite (None: all ten). `critic_gamma` None keeps the
+    `tasks` are indices applied to every suite (None: all of each suite's tasks). `critic_gamma` None keeps the
     annotation's discount; 0.9 and a CQL weight of 1 ranked held-out actions better than 0.99 and 5 on
     libero_object/0 (AUROC 0.57 -> 0.64) and keep Q within its feasible range at these data sizes.
     `critic_reward` "segment" (penalise every step of a violating 25-frame window) ranked them better

@@ -23,7 +23,7 @@ import numpy as np
 
 from annotations.collect import collect_episodes
 from annotations.dataset import DemoFile
-from base_suites import get_task
+from base_suites import task_specs
 from base_suites.env import LiberoEnv
 from elegant.evaluation import check_init_states, episode_start, open_policy
 from elegant.jiti import JITI
@@ -68,14 +68,14 @@ def collect_rollouts(
     resume: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Roll `policy` (a directory or a callable) out `episodes` times per task of `suite` (None: all ten)
+    """Roll `policy` (a directory or a callable) out `episodes` times per task of `suite` (None: every task of it)
     and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
     the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
     policy as it is; more episodes than `init_states` then repeat episodes exactly).
 
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
-    for spec in [get_task(suite, t) for t in (tasks if tasks is not None else range(10))]:
+    for spec in task_specs(suite, tasks):
         check_init_states(init_states, spec.n_init_states)  # before any env or file is made
     mode = "random" if explore > 0 else "base"
     agent = JITI(open_policy(policy), None, mode=mode, random_rate=explore, trust_radius=trust_radius,

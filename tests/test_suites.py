@@ -1,7 +1,7 @@
 """The suite catalogue: every shipped suite lists its tasks with goals and init states."""
 import pytest
 
-from base_suites import UserInputError, get_task, list_suites, list_tasks
+from base_suites import UserInputError, get_task, list_suites, list_tasks, task_specs
 
 
 def test_every_suite_lists_tasks_with_goals_and_init_states():
@@ -28,3 +28,9 @@ def test_unknown_suite_and_task_are_refused_with_choices():
     with pytest.raises(UserInputError, match="0..9"):
         get_task("libero_goal", 10)
     assert get_task("libero_goal", "open_the_middle_drawer_of_the_cabinet").index == 0
+
+
+def test_task_specs_takes_every_task_of_the_suite_by_default_and_the_chosen_ones_in_order():
+    """Demo and rollout collection default to task_specs(suite, None): libero_90 must give all 90, not ten."""
+    assert [s.index for s in task_specs("libero_90")] == list(range(90))
+    assert [s.index for s in task_specs("libero_goal", [3, "open_the_middle_drawer_of_the_cabinet"])] == [3, 0]
