@@ -87,7 +87,7 @@ def parse_indices(text: str | None, flag: str) -> list[int] | None:
 
 def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
-    p.add_argument("--tasks", help="comma-separated task indices (default: all 10)")
+    p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
     p.add_argument("--episodes", type=int, default=50, help="episodes per task")
     p.add_argument("--quality", default="clean", help="clean, mixed, or knob=prob,... (knobs: collide, drop, misplace, tilt, wrong_order, jerky, regrasp)")
     p.add_argument("--seed", type=int, default=0)
@@ -106,7 +106,7 @@ def _demos(args: argparse.Namespace) -> dict:
 
 def _rollouts_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
-    p.add_argument("--tasks", help="comma-separated task indices (default: all 10)")
+    p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
     p.add_argument("--episodes", type=int, default=50, help="episodes per task")
     p.add_argument("--explore", type=float, default=0.0, help="fraction of decisions given a random candidate within the trust radius")
