@@ -22,6 +22,7 @@ _LAZY = {
     "evaluate": "elegant.evaluation",
     "episode_start": "elegant.evaluation",
     "intervention_headroom": "elegant.headroom",
+    "rescore_headroom": "elegant.headroom",
     "collect_rollouts": "elegant.rollouts",
     "summarize": "elegant.metrics",
     "lifelong_metrics": "elegant.metrics",

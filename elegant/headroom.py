@@ -17,13 +17,16 @@ ahead). From each start, as in `elegant eval` with the same seed:
 
 Summarised over decision points: how often the choice matters at all, how often some eligible candidate
 (within the trust radius) gives an elegant success where the base action does not (the headroom), how
-often the critic's choice does (its hit rate), against a uniformly random eligible candidate; and on
-base-elegant episodes, how often each choice spoils the episode.
+often the critic's choice does (its hit rate), against a uniformly random eligible candidate; on
+base-elegant episodes, how often each choice spoils the episode; and, where the eligible candidates'
+outcomes differ, how well the critic's Q separates those that led to an elegant success from those that
+did not (`outcome_auroc`, 0.5 = chance). `rescore_headroom` recomputes all of it for another critic
+from the stored states and candidates.
 """
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -71,28 +74,53 @@ def _rollout(env, monitor, policy, chunk: int, init_index: int, reset_seed: int,
 
 def branch_episode(env, monitor, policy, critic, init_index: int, reset_seed: int, *, every: int, first: int,
                    n_candidates: int) -> dict[str, Any]:
-    """One start: the base episode's outcome and, per decision point, each candidate's Q, distance from
-    the base plan (`plan_distance`) and elegant-success outcome (candidate 0's is the base episode's)."""
+    """One start: the base episode's outcome and, per decision point, the state, the candidate plans, each
+    candidate's Q, distance from the base plan (`plan_distance`) and elegant-success outcome (candidate 0's
+    is the base episode's). The states and candidates let `rescore_headroom` judge another critic on the
+    same outcomes without the simulator."""
     chunk = chunk_of(policy)
     drawn: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def draw(t: int, obs: dict, plan: np.ndarray) -> None:
         if t >= first and (t - first) % every == 0:
-            candidates = draw_candidates(policy, obs, plan, n_candidates)
-            drawn[t] = (candidates, np.asarray(critic.q(obs["state"], candidates.reshape(n_candidates, -1)), dtype=np.float64))
+            drawn[t] = (np.array(obs["state"], dtype=np.float64), draw_candidates(policy, obs, plan, n_candidates))
 
     actions, base_elegant = _rollout(env, monitor, policy, chunk, init_index, reset_seed, (), False, draw)
     points = []
-    for t, (candidates, q) in sorted(drawn.items()):
+    for t, (state, candidates) in sorted(drawn.items()):
         if t + chunk >= len(actions):  # the episode ended within this decision: nothing left to choose
             continue
         outcomes = [base_elegant] + [
             _rollout(env, monitor, policy, chunk, init_index, reset_seed, [*actions[:t], *candidates[k]], True)[1]
             for k in range(1, len(candidates))
         ]
-        distance = plan_distance(candidates)
-        points.append({"step": t, "q": q.round(4).tolist(), "distance": distance.round(4).tolist(), "elegant": outcomes})
+        points.append({"step": t, "q": _scores(critic, state, candidates), "distance": plan_distance(candidates).round(4).tolist(),
+                       "elegant": outcomes, "state": state.tolist(), "candidates": np.asarray(candidates).tolist()})
     return {"init_index": init_index, "reset_seed": reset_seed, "steps": len(actions), "base_elegant": base_elegant, "points": points}
+
+
+def _scores(critic, state: np.ndarray, candidates: np.ndarray) -> list[float]:
+    """The critic's Q of each candidate plan (flattened, as the critic takes chunks) in `state`."""
+    flat = np.asarray(candidates, dtype=np.float64).reshape(len(candidates), -1)
+    return np.asarray(critic.q(np.asarray(state), flat), dtype=np.float64).round(4).tolist()
+
+
+def rescore_headroom(result: Mapping[str, Any], critic: Any, trust_radius: float | None) -> dict[str, Any]:
+    """Judge another critic on branches already run: every decision point's Q recomputed from its stored
+    state and candidates, the outcomes kept. Seconds instead of the hours of branching, so critics can be
+    compared on the decisions that matter, with the simulator's own verdicts as ground truth."""
+    if "suite" not in result or any("candidates" not in p for e in result["episodes"] for p in e["points"]):
+        raise UserInputError("rescore: this headroom result stores no states and candidates (it was written before they were kept); branch again")
+    scorer = open_critic(critic)
+    check_critic_chunk(scorer, result["chunk"])
+    env = make_env(result["suite"], get_task(result["suite"], result["task"]).index, seed=0)
+    try:
+        scorer.bind(env.metadata)
+    finally:
+        env.close()
+    episodes = [{**e, "points": [{**p, "q": _scores(scorer, np.asarray(p["state"]), np.asarray(p["candidates"]))} for p in e["points"]]}
+                for e in result["episodes"]]
+    return {**result, "episodes": episodes, "summary": summarize_headroom(episodes, trust_radius)}
 
 
 def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float | None) -> dict[str, Any]:
@@ -101,7 +129,7 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
         return float(np.mean(values)) if values else None
 
     matters, reachable, critic_hit, random_hit, critic_harm, random_harm = [], [], [], [], [], []
-    rescuable = []
+    rescuable, auroc = [], []
     for episode in episodes:
         any_reachable = False
         for point in episode["points"]:
@@ -110,6 +138,8 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
             eligible = eligible_candidates(distance, trust_radius)
             chosen = choose_candidate(q, distance, trust_radius)
             matters.append(float(elegant.any() != elegant.all()))
+            if elegant[eligible].any() and not elegant[eligible].all():
+                auroc.append(_ranking_auroc(q[eligible & elegant], q[eligible & ~elegant]))
             if episode["base_elegant"]:
                 critic_harm.append(float(not elegant[chosen]))
                 random_harm.append(float(1.0 - elegant[eligible].mean()))
@@ -132,8 +162,16 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
         "critic_harm": rate(critic_harm),
         "random_harm": rate(random_harm),
         "rescuable_episodes": rate(rescuable),
+        "outcome_auroc": rate(auroc),
         "trust_radius": trust_radius,
     }
+
+
+def _ranking_auroc(good: np.ndarray, bad: np.ndarray) -> float:
+    """The probability that the critic scores a candidate that led to an elegant success above one that
+    did not (ties count half): 0.5 is chance."""
+    diff = good[:, None] - bad[None, :]
+    return float(np.mean((diff > 0) + 0.5 * (diff == 0)))
 
 
 def intervention_headroom(
@@ -178,4 +216,4 @@ def intervention_headroom(
             results.append(branch_episode(env, monitor, base, scorer, init_index, reset_seed, every=every, first=first, n_candidates=n_candidates))
     finally:
         env.close()
-    return {"summary": summarize_headroom(results, trust_radius), "episodes": results}
+    return {"suite": suite, "task": spec.index, "chunk": chunk, "summary": summarize_headroom(results, trust_radius), "episodes": results}

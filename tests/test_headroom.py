@@ -30,6 +30,9 @@ def test_summary_counts_reachable_critic_and_random_choices_within_the_trust_rad
     assert s["critic_hit"] == 0.0
     assert s["random_hit"] == pytest.approx((1 / 3 + 0) / 2)
     assert s["critic_harm"] == 1.0 and s["random_harm"] == pytest.approx(1 / 3)
+    # eligible outcomes differ at the first point (the elegant one scored between the two others: 0.5)
+    # and on the elegant episode (both elegant ones scored below the spoiling one: 0)
+    assert s["outcome_auroc"] == pytest.approx(0.25)
     # without a trust radius the far elegant candidate is the critic's choice
     assert summarize_headroom([inelegant], trust_radius=None)["critic_hit"] == 0.5
 
@@ -103,8 +106,16 @@ class ChunkedPlunge(Plunge):
 class ChunkHeightCritic:
     chunk = 2
 
+    def bind(self, metadata):
+        pass
+
     def q(self, state, chunks):
         return state[2] - np.abs(np.asarray(chunks)[:, 0])
+
+
+class ContraryChunkCritic(ChunkHeightCritic):
+    def q(self, state, chunks):
+        return -super().q(state, chunks)
 
 
 @pytest.mark.sim
@@ -124,5 +135,24 @@ def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
     assert [a[0] for a in actions[:6]] == [0.0, 0.0, 0.5, 0.5, 0.0, 0.0]  # the candidate chunk, then the policy again
     with pytest.raises(UserInputError, match="multiples of 2"):
         intervention_headroom("libero_object", 0, ChunkedPlunge(), ChunkHeightCritic(), every=3, first=2)
+    _another_critic_is_judged_on_the_stored_branches(result)
     with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 2"):
         intervention_headroom("libero_object", 0, ChunkedPlunge(), HeightCritic(), every=4, first=2)
+
+
+def _another_critic_is_judged_on_the_stored_branches(episode):
+    """rescore_headroom recomputes Q from each point's stored state and candidates; outcomes stay."""
+    from base_suites import UserInputError
+    from elegant.headroom import rescore_headroom
+
+    result = {"suite": "libero_object", "task": 0, "chunk": 2, "episodes": [episode]}
+    rescored = rescore_headroom(result, ContraryChunkCritic(), trust_radius=None)
+    for old, new in zip(episode["points"], rescored["episodes"][0]["points"]):
+        assert new["q"] == pytest.approx([-v for v in old["q"]], abs=1e-3)
+        assert new["elegant"] == old["elegant"] and new["candidates"] == old["candidates"]
+    assert rescored["summary"]["decision_points"] == 2
+    with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 2"):
+        rescore_headroom(result, HeightCritic(), trust_radius=None)
+    stripped = {**result, "episodes": [{**episode, "points": [{k: v for k, v in p.items() if k != "candidates"} for p in episode["points"]]}]}
+    with pytest.raises(UserInputError, match="stores no states and candidates"):
+        rescore_headroom(stripped, ContraryChunkCritic(), trust_radius=None)
