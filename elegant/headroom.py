@@ -125,6 +125,8 @@ def rescore_headroom(result: Mapping[str, Any], critic: Any, trust_radius: float
 
 def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float | None) -> dict[str, Any]:
     """Rates over decision points (see the module docstring); None where no point qualifies."""
+    from critics.quality import auroc as ranking_auroc  # P(Q of an elegant outcome > Q of another), ties half
+
     def rate(values: list[float]) -> float | None:
         return float(np.mean(values)) if values else None
 
@@ -139,7 +141,7 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
             chosen = choose_candidate(q, distance, trust_radius)
             matters.append(float(elegant.any() != elegant.all()))
             if elegant[eligible].any() and not elegant[eligible].all():
-                auroc.append(_ranking_auroc(q[eligible & elegant], q[eligible & ~elegant]))
+                auroc.append(ranking_auroc(q[eligible & elegant], q[eligible & ~elegant]))
             if episode["base_elegant"]:
                 critic_harm.append(float(not elegant[chosen]))
                 random_harm.append(float(1.0 - elegant[eligible].mean()))
@@ -165,13 +167,6 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
         "outcome_auroc": rate(auroc),
         "trust_radius": trust_radius,
     }
-
-
-def _ranking_auroc(good: np.ndarray, bad: np.ndarray) -> float:
-    """The probability that the critic scores a candidate that led to an elegant success above one that
-    did not (ties count half): 0.5 is chance."""
-    diff = good[:, None] - bad[None, :]
-    return float(np.mean((diff > 0) + 0.5 * (diff == 0)))
 
 
 def intervention_headroom(
