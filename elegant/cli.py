@@ -110,6 +110,8 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
     p.add_argument("--episodes", type=int, default=50, help="episodes per task")
     p.add_argument("--explore", type=float, default=0.0, help="fraction of decisions given a random candidate within the trust radius")
+    p.add_argument("--explore-at", help="instead of --explore: decision steps, e.g. 8,24,40; each episode takes a random "
+                   "candidate at one of them (starts cycle first, then the steps), so episodes from one start differ in one decision")
     p.add_argument("--trust-radius", type=float, default=0.3)
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)")
     p.add_argument("--max-steps", type=int)
@@ -123,7 +125,7 @@ def _rollouts(args: argparse.Namespace) -> dict:
     from elegant.rollouts import collect_rollouts
 
     return collect_rollouts(args.suite, _task_list(args.tasks), args.policy, args.episodes, args.out, explore=args.explore,
-                            trust_radius=args.trust_radius, init_states=parse_indices(args.init_states, "--init-states"),
+                            explore_at=parse_indices(args.explore_at, "--explore-at"), trust_radius=args.trust_radius, init_states=parse_indices(args.init_states, "--init-states"),
                             seed=args.seed, max_steps=args.max_steps, resume=args.resume)
 
 

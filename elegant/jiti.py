@@ -40,13 +40,15 @@ Choices made here, each for a reason:
 - Mode "random" intervenes at a random `random_rate` of decisions with a uniformly random eligible
   candidate, critic or not: the control that tells whether the critic's choice (and its timing) matters,
   and the exploration that gives recorded rollouts (`elegant rollouts`) alternatives with known outcomes.
+  With `random_steps` set it intervenes exactly at the decisions taken at those steps instead: rollouts
+  that share a prefix and differ in one chosen decision, the contrasts a critic must rank.
 """
 from __future__ import annotations
 
 import math
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import asdict, dataclass
 from typing import Any, Protocol
 
@@ -192,6 +194,7 @@ class JITI:
         trust_radius: float | None = None,
         random_rate: float = 0.1,
         min_gain: float = 0.0,
+        random_steps: Collection[int] | None = None,
     ) -> None:
         if mode not in MODES:
             raise unknown_choice("JITI mode", mode, MODES)
@@ -227,6 +230,8 @@ class JITI:
         self.trust_radius = None if trust_radius is None else float(trust_radius)
         self.random_rate = float(random_rate)
         self.min_gain = float(min_gain)
+        # mode "random": intervene at the decisions taken at these steps, not at a random rate (settable per episode)
+        self.random_steps = None if random_steps is None else frozenset(int(t) for t in random_steps)
         self._rng = _choice_rng(seed)  # mode "random": when and what to choose
         self._scores: deque[float] = deque(maxlen=self.window)
         self._queue: deque[np.ndarray] = deque()
@@ -290,7 +295,7 @@ class JITI:
             if mean is not None:
                 dq = abs(q - mean)
         intervene = (self.mode == "jiti" and dq is not None and dq > tau) or \
-            (self.mode == "random" and self._rng.random() < self.random_rate)
+            (self.mode == "random" and self._explores(step))
         if intervene:
             candidates = self._candidates(obs, plan)
             if self.critic is not None:  # the base plan's score is q: only the alternatives are new
@@ -312,6 +317,10 @@ class JITI:
             )
         )
         return self._execute(executed)
+
+    def _explores(self, step: int) -> bool:
+        """Mode "random": whether the decision at `step` gets a random candidate."""
+        return step in self.random_steps if self.random_steps is not None else self._rng.random() < self.random_rate
 
     def _random_choice(self, distance: np.ndarray) -> int:
         """Mode "random": a uniformly random eligible alternative to the base plan (the base plan if none is)."""

@@ -25,6 +25,7 @@ from annotations.collect import collect_episodes
 from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
+from base_suites.errors import UserInputError
 from elegant.evaluation import check_init_states, episode_start, open_policy
 from elegant.jiti import JITI
 
@@ -32,17 +33,23 @@ from elegant.jiti import JITI
 class _PolicySource:
     """`collect_episodes`' actor: the policy wrapped in JITI (mode "base", or "random" to explore)."""
 
-    def __init__(self, agent: JITI, suite: str, seed: int, init_states: Sequence[int] | None, policy_name: str) -> None:
+    def __init__(self, agent: JITI, suite: str, seed: int, init_states: Sequence[int] | None, policy_name: str,
+                 explore_at: Sequence[int] | None) -> None:
         self.agent, self.suite, self.seed, self.init_states, self.policy_name = agent, suite, seed, init_states, policy_name
+        self.explore_at = explore_at
 
     def for_task(self, env: LiberoEnv, spec: Any) -> None:
-        """Nothing per task: one JITI serves all, and `collect_rollouts` checked the init states up front."""
+        """One JITI serves all tasks (`collect_rollouts` checked the init states up front); only the number of
+        starts, which paces the branch points, is per task."""
+        self.n_starts = len(self.init_states) if self.init_states is not None else spec.n_init_states
 
     def start(self, spec: Any, episode: int) -> tuple[int, int]:
         return episode_start(self.seed, self.suite, spec.index, episode, spec.n_init_states, self.init_states)
 
     def begin(self, env: LiberoEnv, episode: int, reset_seed: int) -> None:
         self.agent.reset(env.metadata, seed=reset_seed)
+        if self.explore_at is not None:
+            self.agent.random_steps = {branch_step(self.explore_at, episode, self.n_starts)}
 
     def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         return self.agent(obs)
@@ -50,6 +57,13 @@ class _PolicySource:
     def episode_attrs(self) -> dict[str, Any]:
         explored = [d.step for d in self.agent.log if d.chosen != 0]  # not where no candidate was eligible
         return {"policy": self.policy_name, "rollout": self.agent.config(), "explored_steps": explored}
+
+
+def branch_step(explore_at: Sequence[int], episode: int, n_starts: int) -> int:
+    """The step whose decision episode `episode` explores, with `--explore-at`: starts cycle first (episode i
+    starts from the (i mod n_starts)-th start of the seeded order), then the branch points, so the first
+    n_starts * len(explore_at) episodes branch every start once at every point."""
+    return int(explore_at[(episode // n_starts) % len(explore_at)])
 
 
 def collect_rollouts(
@@ -60,6 +74,7 @@ def collect_rollouts(
     out: str,
     *,
     explore: float = 0.0,
+    explore_at: Sequence[int] | None = None,
     trust_radius: float | None = 0.3,
     n_candidates: int = 16,
     init_states: Sequence[int] | None = None,
@@ -77,12 +92,20 @@ def collect_rollouts(
     """
     for spec in task_specs(suite, tasks):
         check_init_states(init_states, spec.n_init_states)  # before any env or file is made
-    mode = "random" if explore > 0 else "base"
+    if explore_at is not None:
+        if explore > 0:
+            raise UserInputError("rollouts: give --explore (a rate) or --explore-at (decision steps), not both")
+        if not explore_at or min(explore_at) < 0:
+            raise UserInputError(f"rollouts: --explore-at needs decision steps >= 0, got {list(explore_at)}")
+        explore_at = [int(t) for t in explore_at]
+    mode = "random" if explore > 0 or explore_at is not None else "base"
     agent = JITI(open_policy(policy), None, mode=mode, random_rate=explore, trust_radius=trust_radius,
                  n_candidates=n_candidates, seed=seed)
     name = policy if isinstance(policy, str) else type(policy).__name__
-    source = _PolicySource(agent, suite, seed, None if init_states is None else list(init_states), name)
+    source = _PolicySource(agent, suite, seed, None if init_states is None else list(init_states), name, explore_at)
     settings = {"policy": name, "rollout": agent.config(), "init_states": source.init_states, "max_steps": max_steps}
+    if explore_at is not None:  # only then: files collected before it existed still resume
+        settings["explore_at"] = explore_at
     path = collect_episodes(suite, tasks, episodes, out, source, seed=seed, resume=resume, progress=progress, desc="rollouts",
                             horizon=lambda spec: max_steps or spec.default_max_steps, settings=settings)
     with DemoFile(path) as f:

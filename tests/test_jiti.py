@@ -339,3 +339,13 @@ def test_mode_random_intervenes_at_the_requested_rate_with_eligible_candidates_o
     assert all(d.q == 5.0 for d in scored.log) and all(len(d.candidate_q) == 16 for d in scored.log if d.intervened)
     with pytest.raises(UserInputError, match="random_rate"):
         JITI(SamplingPolicy(), None, mode="random", random_rate=1.5)
+
+
+def test_mode_random_with_random_steps_intervenes_exactly_there():
+    jiti = JITI(ChunkPolicy(), None, mode="random", random_rate=1.0, random_steps=[3, 7, 9], n_candidates=16, seed=5)
+    rollout(jiti, 12)
+    # decisions come every 3 steps: step 7 lies inside a chunk and is no decision, so never explored
+    assert [d.step for d in jiti.log if d.intervened] == [3, 9] and all(d.chosen != 0 for d in jiti.log if d.intervened)
+    jiti.random_steps = {6}  # rollouts choose the branch step per episode
+    rollout(jiti, 12)
+    assert [d.step for d in jiti.log if d.intervened] == [6]

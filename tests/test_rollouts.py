@@ -7,7 +7,7 @@ import pytest
 from annotations import CRITERIA, DemoFile, annotate_file
 from base_suites import UserInputError, make_env
 from elegant.evaluation import episode_start
-from elegant.rollouts import collect_rollouts
+from elegant.rollouts import branch_step, collect_rollouts
 from conftest import interrupted_at_second_episode
 from itc import ITCMonitor
 
@@ -76,6 +76,22 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
             np.testing.assert_array_equal(demo.itc[c], live.steps[c], err_msg=c)
         assert demo.attrs["success"] == live.success and demo.mc_return.shape == (demo.num_samples,)
     env.close()
+
+
+def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_path):
+    # 3 starts, points [2, 5]: episodes 0-2 branch at step 2, 3-5 at step 5, each start once per point
+    summary = collect_rollouts(SUITE, [TASK], Lower(), 6, str(tmp_path / "branches.hdf5"), explore_at=[2, 5], trust_radius=0.3,
+                               init_states=INITS, seed=4, max_steps=STEPS, progress=False)
+    with DemoFile(summary["out"]) as f:
+        demos = list(f)
+    assert [d.attrs["explored_steps"] for d in demos] == [[2]] * 3 + [[5]] * 3 and summary["explored_per_episode"] == 1.0
+    assert [branch_step([2, 5], i, 3) for i in range(7)] == [2, 2, 2, 5, 5, 5, 2]
+    for early, late in zip(demos[:3], demos[3:]):
+        assert early.attrs["init_state_index"] == late.attrs["init_state_index"]
+        np.testing.assert_array_equal(early.states[:3], late.states[:3])  # the same scene up to the branch at step 2
+        assert early.actions[2][0] != 0.0 and late.actions[2][0] == 0.0 and late.actions[5][0] != 0.0
+    with pytest.raises(UserInputError, match="not both"):
+        collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), explore=0.1, explore_at=[2], progress=False)
 
 
 def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
