@@ -56,7 +56,7 @@ from annotations import CRITERIA, DemoFile, TaskFeatureEncoder
 from base_suites.errors import UserInputError, unknown_choice
 from critics.normalization import Normalization
 
-REWARDS = ("step", "segment")  # what the violation penalty is judged on: each step, or each step's window
+REWARDS = ("step", "segment", "elegant")  # the violation penalty per step or per window; or an elegant success
 
 NO_FLOOR = -1.0e6  # an MC "floor" that never clips (for demos whose return is not a lower bound)
 
@@ -220,6 +220,27 @@ def chunk_transitions(transitions: TensorDict, lengths: Sequence[int], chunk: in
     return torch.cat(out)
 
 
+def _elegant_success(demos: list[_RawDemo], gamma: float) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+    """Reward "elegant": 1 at the last step of an elegant success, else 0, and an episode ends for the critic
+    at every step of a violating window and after (absorbing: from there no elegant success is possible).
+    Returns the per-step reward, the MC return (exact at every step, so Cal-QL floors with all of them),
+    and where episodes end, all of them terminal (a failed episode's return is 0, not cut short)."""
+    rewards, returns, ended = [], [], []
+    for d in demos:
+        alive = np.logical_and.accumulate(d.window_kept)
+        elegant_success = bool(alive[-1]) and d.success
+        steps = len(d.reward)
+        reward = np.zeros(steps, dtype=np.float32)
+        reward[-1] = float(elegant_success)
+        to_go = gamma ** np.arange(steps - 1, -1, -1, dtype=np.float64)
+        returns.append((to_go * elegant_success).astype(np.float32))
+        end = ~alive
+        end[-1] = True
+        rewards.append(reward)
+        ended.append(end)
+    return torch.from_numpy(np.concatenate(rewards)), torch.from_numpy(np.concatenate(returns)), np.concatenate(ended)
+
+
 def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: str = "step", chunk: int = 1) -> TransitionData:
     """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
 
@@ -273,16 +294,20 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
     gamma = annotation_gamma if gamma is None else float(gamma)
     # Train on a violation penalty (0 where all four ITCs hold, -1 where one breaks), not on r itself:
     # with r, Q counts the kept steps still to come, so it mostly measures how long the episode has left
-    # and rewards dawdling; with the penalty it is minus the discounted violations to come, which is what
-    # ranking actions by elegance needs.
-    if reward == "segment":
-        elegance = torch.from_numpy(np.concatenate([d.window_kept for d in demos]).astype(np.float32))
-    penalty = elegance - 1.0
-    mc_return = reward2go(penalty, done, gamma, time_dim=-1)
-    # A demo cut off without success could have violated more later: its MC return is then an upper
-    # bound, not the lower bound Cal-QL's floor needs, so those transitions get no floor.
-    truncated_rows = torch.from_numpy(np.repeat([not d.success for d in demos], [len(d.reward) for d in demos]))
-    mc_return = torch.where(truncated_rows, torch.full_like(mc_return, NO_FLOOR), mc_return)
+    # and rewards dawdling; with the penalty it is minus the discounted violations to come. Or, with
+    # "elegant", on the discounted chance of an elegant success: the binary outcome ESR counts.
+    if reward == "elegant":
+        train_reward, mc_return, last = _elegant_success(demos, gamma)
+        terminal, done = last.copy(), torch.from_numpy(last)
+    else:
+        if reward == "segment":
+            elegance = torch.from_numpy(np.concatenate([d.window_kept for d in demos]).astype(np.float32))
+        train_reward = elegance - 1.0
+        mc_return = reward2go(train_reward, done, gamma, time_dim=-1)
+        # A demo cut off without success could have violated more later: its MC return is then an upper
+        # bound, not the lower bound Cal-QL's floor needs, so those transitions get no floor.
+        truncated_rows = torch.from_numpy(np.repeat([not d.success for d in demos], [len(d.reward) for d in demos]))
+        mc_return = torch.where(truncated_rows, torch.full_like(mc_return, NO_FLOOR), mc_return)
 
     normalization = Normalization.fit(obs, actions, encoder.state_dim)
     lengths = [len(d.reward) for d in demos]
@@ -294,14 +319,14 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
             "mc_return": _column(mc_return),
             "next": {
                 "observation": torch.from_numpy(normalization.observations(next_obs)),
-                "reward": _column(penalty),
+                "reward": _column(train_reward),
                 "action": torch.cat([_following(a, 1) for a in scaled_actions.split(lengths)]),
                 "done": _column(done),
                 "terminated": _column(torch.from_numpy(terminal)),
                 "truncated": _column(torch.from_numpy(last & ~terminal)),
             },
         },
-        batch_size=[len(penalty)],
+        batch_size=[len(train_reward)],
     )
     transitions = chunk_transitions(transitions, lengths, int(chunk), gamma)
     return TransitionData(transitions, encoder, normalization, float(gamma), len(demos), int(chunk))

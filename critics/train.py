@@ -63,9 +63,10 @@ class TrainConfig:
     log_every: int = 100
     checkpoint_every: int = 1000
     gamma: float | None = None  # None: the annotation's
-    reward: str = "step"  # the violation penalty per step or per window (critics.data.REWARDS)
+    reward: str = "step"  # the violation penalty per step or per window, or elegant success (critics.data.REWARDS)
     chunk: int = 1  # actions per scored decision: the chunk length of the policy the critic will judge
     backup: str = "policy"  # the TD target's next action (critics.loss.BACKUPS; see CalQLLoss)
+    weight_decay: float = 0.0  # decoupled (AdamW) weight decay of the critics' weights only
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
@@ -80,6 +81,8 @@ class TrainConfig:
             raise unknown_choice("train-critic reward", self.reward, REWARDS)
         if self.backup not in BACKUPS:
             raise unknown_choice("train-critic backup", self.backup, BACKUPS)
+        if not self.weight_decay >= 0.0:
+            raise UserInputError(f"train-critic: weight_decay must be >= 0, got {self.weight_decay}")
 
 
 class _Run:
@@ -97,12 +100,14 @@ class _Run:
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         groups = [
             {"params": list(self.loss.actor_network_params.values(True, True)), "lr": cfg.actor_lr},
-            {"params": list(self.loss.qvalue_network_params.values(True, True)), "lr": cfg.critic_lr},
+            # Decay shrinks Q's dependence on state details the few starts make memorisable (a Q that
+            # tells the episodes apart by their states need not rank the actions taken in one of them).
+            {"params": list(self.loss.qvalue_network_params.values(True, True)), "lr": cfg.critic_lr, "weight_decay": cfg.weight_decay},
             {"params": [self.loss.log_alpha], "lr": cfg.alpha_lr},
         ]
         if cfg.with_lagrange:
             groups.append({"params": [self.loss.log_alpha_prime], "lr": cfg.critic_lr})
-        self.optimizer = torch.optim.Adam(groups)
+        self.optimizer = torch.optim.Adam(groups, decoupled_weight_decay=True)  # with no decay, plain Adam
         self.generator = torch.Generator().manual_seed(cfg.seed)
         self.buffer = make_replay_buffer(data.transitions, cfg.batch_size, self.generator)
 
@@ -147,7 +152,7 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
-    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1, "backup": "policy"})
+    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1, "backup": "policy", "weight_decay": 0.0})
     if changed:
         raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
                              + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed) + ")")
@@ -199,6 +204,7 @@ def train_critic(
     reward: str = "step",
     chunk: int = 1,
     backup: str = "policy",
+    weight_decay: float = 0.0,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -210,7 +216,8 @@ def train_critic(
     cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
     annotation's), reward ("step" or "segment") and chunk (actions per scored decision, the chunk length of
     the policy the critic will judge): see `critics.data.load_transitions`; backup ("policy" or "dataset",
-    the TD target's next action): see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
+    the TD target's next action): see `CalQLLoss`; weight_decay: decoupled weight decay of the critics (not
+    the actor). Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -220,7 +227,7 @@ def train_critic(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
         log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
-        backup=backup,
+        backup=backup, weight_decay=weight_decay,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)

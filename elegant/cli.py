@@ -219,10 +219,13 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lagrange", action="store_true", help="tune the CQL weight with a Lagrange multiplier")
     p.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
     p.add_argument("--reward", default="step",
-                   help="step: penalise each violating step; segment: every step of a violating 25-frame window")
+                   help="step: penalise each violating step; segment: every step of a violating 25-frame window; "
+                   "elegant: 1 for an elegant success, the episode ending at its first violating window")
     p.add_argument("--chunk", type=int, default=1, help="actions per scored decision (the chunk length of the policy to judge)")
     p.add_argument("--backup", default="policy",
                    help="the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action, in-sample)")
+    p.add_argument("--hidden", default="256,256", help="hidden layer widths of the critics and the actor, e.g. 64,64")
+    p.add_argument("--weight-decay", type=float, default=0.0, help="decoupled weight decay of the critics' weights")
     p.add_argument("--resume", action="store_true")
 
 
@@ -233,7 +236,7 @@ def _train_critic(args: argparse.Namespace) -> dict:
     return train_critic(args.data, args.out, steps=args.steps, batch_size=args.batch_size, seed=args.seed, resume=args.resume,
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
                         with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk,
-                        backup=args.backup)
+                        backup=args.backup, hidden=parse_indices(args.hidden, "--hidden"), weight_decay=args.weight_decay)
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:

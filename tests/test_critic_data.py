@@ -32,10 +32,12 @@ def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
 
 
 def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9, labelled: bool = True,
-                    lengths: tuple[int, int] = (30, 60), corrupt_return: bool = False) -> str:
+                    lengths: tuple[int, int] = (30, 60), corrupt_return: bool = False, violation_rate: float = 0.01,
+                    violate_at: dict[int, int] | None = None) -> str:
     """An annotated file of two libero_object tasks with random states, actions and ITC labels.
 
     Demo i belongs to task i % 2 and succeeds when i % 3 != 2; actions use [-0.5, 0.5] in every dimension.
+    Each step violates each criterion with `violation_rate`; `violate_at` {demo: step} adds a collision there.
     """
     rng = np.random.default_rng(seed)
     attrs = {"annotation": {"schema_version": 1, "gamma": gamma, "segment_length": SEGMENT_LENGTH, "itc_params": {}}} if labelled else {}
@@ -56,7 +58,9 @@ def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9
             attrs={"suite": "libero_object", "task_index": task, "task_name": f"task {task}", "success": success},
         )
         if labelled:
-            itc = {c: rng.random(t) > 0.01 for c in CRITERIA}
+            itc = {c: rng.random(t) >= violation_rate for c in CRITERIA}
+            if i in (violate_at or {}):
+                itc["collision"][violate_at[i]] = False
             n_seg = -(-t // SEGMENT_LENGTH)
             demo.itc = itc
             demo.itc_segments = {c: np.array([itc[c][k * SEGMENT_LENGTH:(k + 1) * SEGMENT_LENGTH].all() for k in range(n_seg)]) for c in CRITERIA}
@@ -170,6 +174,25 @@ def test_segment_reward_penalises_every_step_of_a_violating_window(annotated):
     assert np.allclose(data.transitions["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
     with pytest.raises(UserInputError, match="unknown reward 'window'"):
         load_transitions([annotated], reward="window")
+
+
+def test_elegant_reward_pays_an_elegant_success_and_ends_at_the_first_violating_window(tmp_path):
+    """reward="elegant": Q is the discounted chance of an elegant success, the binary outcome ESR counts."""
+    path = write_annotated(tmp_path / "e.hdf5", n_demos=3, lengths=(60, 61), violation_rate=0.0, violate_at={1: 40})
+    td = load_transitions([path], gamma=0.9, reward="elegant").transitions
+    reward, ret = td["next", "reward"].squeeze(-1).numpy(), td["mc_return"].squeeze(-1).numpy()
+    done, terminated = td["next", "done"].squeeze(-1).numpy(), td["next", "terminated"].squeeze(-1).numpy()
+    elegant, violated, failed = np.split(np.arange(180), [60, 120])  # demo 0 elegant, 1 collides at 40, 2 fails cleanly
+    assert np.flatnonzero(reward).tolist() == [59] and reward[59] == 1.0
+    np.testing.assert_allclose(ret[elegant], 0.9 ** np.arange(59, -1, -1), rtol=1e-6)
+    assert not ret[violated].any() and not ret[failed].any()  # every return exact: Cal-QL floors with all
+    # the collision at step 40 breaks window 25-49: from its start no elegant success is possible
+    assert np.flatnonzero(done).tolist() == [59, *range(60 + 25, 120), 179] and np.array_equal(done, terminated)
+    assert not td["next", "truncated"].any()
+    chunked = load_transitions([path], gamma=0.9, reward="elegant", chunk=8).transitions
+    assert chunked["next", "terminated"][60 + 20].item() and chunked["steps_to_next_obs"][60 + 20].item() == 6  # ends with step 25
+    assert not chunked["next", "terminated"][60 + 8].item() and chunked["next", "reward"][60 + 8].item() == 0.0
+    assert chunked["next", "reward"][52].item() == pytest.approx(0.9 ** 7)  # the chunk that ends the elegant success
 
 
 def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):

@@ -199,6 +199,21 @@ def test_the_in_sample_backup_reaches_the_loss_and_binds_a_resume(annotated, tmp
         train_critic([annotated], str(tmp_path / "bad"), steps=1, backup="expectile", **TINY)
 
 
+def test_weight_decay_shrinks_the_critics_weights_only_and_binds_a_resume(annotated, tmp_path):
+    runs = {wd: str(tmp_path / f"wd{wd}") for wd in (0.0, 0.5)}
+    for wd, run in runs.items():
+        train_critic([annotated], run, steps=20, weight_decay=wd, **{**TINY, "batch_size": 8})
+    saved = {wd: torch.load(os.path.join(run, "critic.pt"), weights_only=True) for wd, run in runs.items()}
+    norm = {wd: sum(float(v.norm()) for k, v in weights.items() if "weight" in k) for wd, weights in saved.items()}
+    assert norm[0.5] < norm[0.0]
+    with open(os.path.join(runs[0.5], "critic.json")) as f:
+        assert json.load(f)["training"]["weight_decay"] == 0.5
+    with pytest.raises(UserInputError, match="cannot resume with different weight_decay"):
+        train_critic([annotated], runs[0.5], steps=21, resume=True, **{**TINY, "batch_size": 8})
+    with pytest.raises(UserInputError, match="weight_decay must be >= 0"):
+        train_critic([annotated], str(tmp_path / "bad"), steps=1, weight_decay=-1.0, **TINY)
+
+
 def test_a_chunk_critic_scores_flattened_chunks_normalised_step_by_step(annotated, tmp_path):
     from critics import action_chunks
 
