@@ -17,6 +17,11 @@ The TD target r + gamma * min_c Q_target(s', a') takes a' ~ pi(.|s') as Cal-QL d
 or the dataset's next action (`backup="dataset"`, in-sample as in SARSA and IQL), which keeps the
 actor's pushed-down actions out of the backup.
 
+`mc_weight` > 0 adds to the TD regression a regression of Q(s, a_data) on the Monte-Carlo return itself
+(where it is one, not the "no floor" mark): TD(0) through chunk after chunk barely carried an outcome 100
+steps away back to the decision that caused it, while the same network fitted to the returns ranked a
+policy's candidates by their simulated outcomes (see the README's branch experiments).
+
 Each `loss_*` term sends gradients only to its own parameters (the critic terms to the critics, the actor
 term to the actor through its reparameterised action, the temperature terms to their log-multipliers), so
 their sum can be back-propagated once and stepped with one optimiser. The input tensordict is not
@@ -34,6 +39,7 @@ from torch import Tensor
 from torchrl.objectives import LossModule
 from torchrl.objectives.value.functional import td0_return_estimate
 
+from critics.data import NO_FLOOR
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
 BACKUPS = ("policy", "dataset")  # the next action of the TD target: a' ~ pi(.|s'), or the dataset's (`CalQLLoss`)
@@ -108,6 +114,8 @@ class CalQLLoss(LossModule):
             within range and raised held-out AUROC from 0.64 to 0.73. But it values only the data's actions:
             choosing among a BC policy's candidates with it, JITI lost more success (48% against 80% with
             Cal-QL's backup, base 72%), so "policy" stays the default.
+        mc_weight: weight of the regression of Q(s, a_data) on `mc_return` added to loss_qvalue (rows
+            whose return is `critics.data.NO_FLOOR` are left out); 0, the default, is Cal-QL's TD alone.
 
     Reads (names configurable with `set_keys`): observation, action, mc_return, ("next", observation),
     ("next", reward), ("next", terminated), and steps_to_next_obs where present (multi-step and action-chunk
@@ -163,6 +171,7 @@ class CalQLLoss(LossModule):
         fixed_alpha: bool = False,
         target_entropy: float | str = "auto",
         backup: str = "policy",
+        mc_weight: float = 0.0,
     ) -> None:
         super().__init__()
         if backup not in BACKUPS:
@@ -181,6 +190,7 @@ class CalQLLoss(LossModule):
         self.target_action_gap = float(target_action_gap)
         self.target_entropy = -float(self.action_dim) if target_entropy == "auto" else float(target_entropy)
         self.backup = backup
+        self.mc_weight = float(mc_weight)
         log_alpha = torch.tensor(math.log(alpha_init))
         if fixed_alpha:
             self.register_buffer("log_alpha", log_alpha)
@@ -265,9 +275,14 @@ class CalQLLoss(LossModule):
 
     # ---- the loss terms ----------------------------------------------------------------------
     def qvalue_loss(self, tensordict: TensorDictBase, terms: CalQLTerms | None = None) -> tuple[Tensor, dict]:
-        """TD(0) regression of every critic on dataset actions (mean squared error, summed over critics)."""
+        """TD(0) regression of every critic on dataset actions (mean squared error, summed over critics),
+        plus `mc_weight` times the same regression on the Monte-Carlo returns."""
         t = self._terms_of(tensordict, terms)
         loss = (t.q_data - t.target).pow(2).mean(-1).sum(0)
+        if self.mc_weight > 0:
+            known = (t.mc_return > NO_FLOOR).to(t.q_data.dtype)
+            mc_error = ((t.q_data - t.mc_return).pow(2) * known).sum(-1) / known.sum().clamp(min=1.0)
+            loss = loss + self.mc_weight * mc_error.sum(0)
         return loss, {"q_data": t.q_data.detach().mean(), "td_target": t.target.mean()}
 
     def _cql_gap(self, t: CalQLTerms) -> Tensor:

@@ -67,6 +67,7 @@ class TrainConfig:
     chunk: int = 1  # actions per scored decision: the chunk length of the policy the critic will judge
     backup: str = "policy"  # the TD target's next action (critics.loss.BACKUPS; see CalQLLoss)
     weight_decay: float = 0.0  # decoupled (AdamW) weight decay of the critics' weights only
+    mc_weight: float = 0.0  # weight of Q's regression on the Monte-Carlo returns beside TD (CalQLLoss)
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
@@ -81,8 +82,9 @@ class TrainConfig:
             raise unknown_choice("train-critic reward", self.reward, REWARDS)
         if self.backup not in BACKUPS:
             raise unknown_choice("train-critic backup", self.backup, BACKUPS)
-        if not self.weight_decay >= 0.0:
-            raise UserInputError(f"train-critic: weight_decay must be >= 0, got {self.weight_decay}")
+        for name in ("weight_decay", "mc_weight"):
+            if not getattr(self, name) >= 0.0:
+                raise UserInputError(f"train-critic: {name} must be >= 0, got {getattr(self, name)}")
 
 
 class _Run:
@@ -95,7 +97,7 @@ class _Run:
         self.loss = CalQLLoss(
             actor, critic, gamma=data.gamma, n_actions=cfg.n_actions, cql_weight=cfg.cql_weight,
             temperature=cfg.temperature, calibrate=cfg.calibrate, with_lagrange=cfg.with_lagrange,
-            target_action_gap=cfg.target_action_gap, backup=cfg.backup,
+            target_action_gap=cfg.target_action_gap, backup=cfg.backup, mc_weight=cfg.mc_weight,
         )
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         groups = [
@@ -152,7 +154,7 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
-    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1, "backup": "policy", "weight_decay": 0.0})
+    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0})
     if changed:
         raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
                              + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed) + ")")
@@ -205,6 +207,7 @@ def train_critic(
     chunk: int = 1,
     backup: str = "policy",
     weight_decay: float = 0.0,
+    mc_weight: float = 0.0,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -217,7 +220,7 @@ def train_critic(
     annotation's), reward ("step" or "segment") and chunk (actions per scored decision, the chunk length of
     the policy the critic will judge): see `critics.data.load_transitions`; backup ("policy" or "dataset",
     the TD target's next action): see `CalQLLoss`; weight_decay: decoupled weight decay of the critics (not
-    the actor). Learning rates and tau are `TrainConfig`'s.
+    the actor); mc_weight: see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -227,7 +230,7 @@ def train_critic(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
         log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
-        backup=backup, weight_decay=weight_decay,
+        backup=backup, weight_decay=weight_decay, mc_weight=mc_weight,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)

@@ -226,6 +226,7 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
                    help="the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action, in-sample)")
     p.add_argument("--hidden", default="256,256", help="hidden layer widths of the critics and the actor, e.g. 64,64")
     p.add_argument("--weight-decay", type=float, default=0.0, help="decoupled weight decay of the critics' weights")
+    p.add_argument("--mc-weight", type=float, default=0.0, help="weight of Q's regression on the Monte-Carlo returns beside TD")
     p.add_argument("--resume", action="store_true")
 
 
@@ -236,7 +237,8 @@ def _train_critic(args: argparse.Namespace) -> dict:
     return train_critic(args.data, args.out, steps=args.steps, batch_size=args.batch_size, seed=args.seed, resume=args.resume,
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
                         with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk,
-                        backup=args.backup, hidden=parse_indices(args.hidden, "--hidden"), weight_decay=args.weight_decay)
+                        backup=args.backup, hidden=parse_indices(args.hidden, "--hidden"), weight_decay=args.weight_decay,
+                        mc_weight=args.mc_weight)
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:

@@ -11,6 +11,7 @@ from tensordict import TensorDict
 from torchrl.objectives import SoftUpdate
 
 from critics import CalQLLoss, TanhGaussianActor, TwinQNetwork, cql_logsumexp
+from critics.data import NO_FLOOR
 
 OBS, ACT, BATCH, N = 5, 3, 6, 4
 
@@ -231,3 +232,15 @@ def test_multi_step_transitions_discount_the_bootstrap_by_gamma_to_the_steps():
     discount = 0.9 ** batch["steps_to_next_obs"].squeeze(-1).float()
     assert torch.allclose(terms.target, torch.where(terminated, reward, reward + discount * next_q))
     assert not torch.allclose(terms.target, loss.terms(make_batch()).target)
+
+
+def test_mc_weight_adds_the_regression_on_known_monte_carlo_returns_only():
+    batch = make_batch()
+    batch["mc_return"][:2] = NO_FLOOR  # no return known for the first two rows
+    plain, with_mc = make_loss(), make_loss(mc_weight=2.0)  # same seed: the same networks
+    terms = plain.terms(batch)
+    td, _ = plain.qvalue_loss(batch, terms)
+    combined, _ = with_mc.qvalue_loss(batch, terms)
+    known = batch["mc_return"].squeeze(-1)[2:]
+    expected = td + 2.0 * (terms.q_data[:, 2:] - known).pow(2).mean(-1).sum(0)
+    assert combined.item() == pytest.approx(expected.item(), rel=1e-6) and combined.item() > td.item()

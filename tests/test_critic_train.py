@@ -212,6 +212,8 @@ def test_weight_decay_shrinks_the_critics_weights_only_and_binds_a_resume(annota
         train_critic([annotated], runs[0.5], steps=21, resume=True, **{**TINY, "batch_size": 8})
     with pytest.raises(UserInputError, match="weight_decay must be >= 0"):
         train_critic([annotated], str(tmp_path / "bad"), steps=1, weight_decay=-1.0, **TINY)
+    with pytest.raises(UserInputError, match="mc_weight must be >= 0"):
+        train_critic([annotated], str(tmp_path / "bad"), steps=1, mc_weight=-1.0, **TINY)
 
 
 def test_a_chunk_critic_scores_flattened_chunks_normalised_step_by_step(annotated, tmp_path):
