@@ -17,6 +17,12 @@ The TD target r + gamma * min_c Q_target(s', a') takes a' ~ pi(.|s') as Cal-QL d
 or the dataset's next action (`backup="dataset"`, in-sample as in SARSA and IQL), which keeps the
 actor's pushed-down actions out of the backup.
 
+`value_loss="bce"` (for returns in [0, 1], the elegant-success reward): the critics output logits, the TD
+target is r + gamma^k * sigmoid(min target logit(s', a')), a probability, and each critic is fitted to it
+by binary cross-entropy, as classification value losses do (Farebrother et al. 2024, "Stop Regressing");
+the CQL term and Cal-QL's floor (the logit of the MC return) act on the logits. Why: squared error on a
+rare binary outcome ranked a policy's candidates worse than cross-entropy on the same data and network.
+
 `mc_weight` > 0 adds to the TD regression a regression of Q(s, a_data) on the Monte-Carlo return itself
 (where it is one, not the "no floor" mark): TD(0) through chunk after chunk barely carried an outcome 100
 steps away back to the decision that caused it, while the same network fitted to the returns ranked a
@@ -43,6 +49,8 @@ from critics.data import NO_FLOOR
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
 BACKUPS = ("policy", "dataset")  # the next action of the TD target: a' ~ pi(.|s'), or the dataset's (`CalQLLoss`)
+VALUE_LOSSES = ("mse", "bce")  # Q regressed on its target, or Q a logit classified against a target probability
+LOGIT_LIMIT = 10.0  # the logit floor of a certain outcome (sigmoid(10) = 0.99995)
 
 
 def cql_logsumexp(
@@ -116,6 +124,8 @@ class CalQLLoss(LossModule):
             Cal-QL's backup, base 72%), so "policy" stays the default.
         mc_weight: weight of the regression of Q(s, a_data) on `mc_return` added to loss_qvalue (rows
             whose return is `critics.data.NO_FLOOR` are left out); 0, the default, is Cal-QL's TD alone.
+        value_loss: "mse" (the default) or "bce" (logit critics classified against target probabilities;
+            rewards and returns must lie in [0, 1]).
 
     Reads (names configurable with `set_keys`): observation, action, mc_return, ("next", observation),
     ("next", reward), ("next", terminated), and steps_to_next_obs where present (multi-step and action-chunk
@@ -172,8 +182,11 @@ class CalQLLoss(LossModule):
         target_entropy: float | str = "auto",
         backup: str = "policy",
         mc_weight: float = 0.0,
+        value_loss: str = "mse",
     ) -> None:
         super().__init__()
+        if value_loss not in VALUE_LOSSES:
+            raise ValueError(f"value_loss must be one of {', '.join(VALUE_LOSSES)}, got {value_loss!r}")
         if backup not in BACKUPS:
             raise ValueError(f"backup must be one of {', '.join(BACKUPS)}, got {backup!r}")
         if actor_network.action_dim != qvalue_network.action_dim or actor_network.obs_dim != qvalue_network.obs_dim:
@@ -191,6 +204,7 @@ class CalQLLoss(LossModule):
         self.target_entropy = -float(self.action_dim) if target_entropy == "auto" else float(target_entropy)
         self.backup = backup
         self.mc_weight = float(mc_weight)
+        self.value_loss = value_loss
         log_alpha = torch.tensor(math.log(alpha_init))
         if fixed_alpha:
             self.register_buffer("log_alpha", log_alpha)
@@ -258,6 +272,8 @@ class CalQLLoss(LossModule):
         actor_q = self._q(self.qvalue_network_params.detach(), obs, actor_action.unsqueeze(1)).amin(0).squeeze(-1)
         with torch.no_grad():  # .data: swapping the target buffers into the module would turn them into Parameters
             next_value = self._q(self.target_qvalue_network_params.data, next_obs, next_action.unsqueeze(1)).amin(0).squeeze(-1)
+            if self.value_loss == "bce":
+                next_value = torch.sigmoid(next_value)
             target = td0_return_estimate(gamma, next_value, reward.to(next_value.dtype), terminated.bool())
         return CalQLTerms(
             actor_log_prob=actor_log_prob,
@@ -278,16 +294,28 @@ class CalQLLoss(LossModule):
         """TD(0) regression of every critic on dataset actions (mean squared error, summed over critics),
         plus `mc_weight` times the same regression on the Monte-Carlo returns."""
         t = self._terms_of(tensordict, terms)
-        loss = (t.q_data - t.target).pow(2).mean(-1).sum(0)
+        loss = self._fit(t.q_data, t.target).mean(-1).sum(0)
         if self.mc_weight > 0:
             known = (t.mc_return > NO_FLOOR).to(t.q_data.dtype)
-            mc_error = ((t.q_data - t.mc_return).pow(2) * known).sum(-1) / known.sum().clamp(min=1.0)
+            mc_error = (self._fit(t.q_data, t.mc_return) * known).sum(-1) / known.sum().clamp(min=1.0)
             loss = loss + self.mc_weight * mc_error.sum(0)
         return loss, {"q_data": t.q_data.detach().mean(), "td_target": t.target.mean()}
 
+    def _fit(self, q: Tensor, target: Tensor) -> Tensor:
+        """(C, B) per-critic, per-row loss of outputs q against targets (B,)."""
+        if self.value_loss == "bce":
+            return torch.nn.functional.binary_cross_entropy_with_logits(q, target.clamp(0.0, 1.0).expand_as(q), reduction="none")
+        return (q - target).pow(2)
+
+    def _floor(self, mc_return: Tensor) -> Tensor:
+        """Cal-QL's floor in the critics' units: the MC return, or its logit for logit critics."""
+        if self.value_loss == "bce":
+            return torch.logit(mc_return.clamp(0.0, 1.0)).clamp(-LOGIT_LIMIT, LOGIT_LIMIT)
+        return mc_return
+
     def _cql_gap(self, t: CalQLTerms) -> Tensor:
         """(C, B): ood(s) - Q(s, a_data) for each critic and state."""
-        floor = t.mc_return if self.calibrate else None
+        floor = self._floor(t.mc_return) if self.calibrate else None
         ood = cql_logsumexp(t.q_uniform, t.q_policy, t.policy_log_prob, floor, action_dim=self.action_dim, temperature=self.temperature)
         return ood - t.q_data
 
@@ -297,7 +325,7 @@ class CalQLLoss(LossModule):
         gap = self._cql_gap(t).mean(-1)  # (C,)
         offset = self.target_action_gap if self.with_lagrange else 0.0
         loss = (self.cql_weight * self.alpha_prime * (gap - offset)).sum(0)
-        calibrated = (t.q_policy.detach() < t.mc_return.unsqueeze(-1)).float().mean()
+        calibrated = (t.q_policy.detach() < self._floor(t.mc_return).unsqueeze(-1)).float().mean()
         return loss, {"cql_gap": gap.detach().mean(), "calibrated_fraction": calibrated}
 
     def alpha_prime_loss(self, tensordict: TensorDictBase, terms: CalQLTerms | None = None) -> tuple[Tensor, dict]:

@@ -31,7 +31,7 @@ from base_suites.atomic import atomic_write, changed_fields, library_versions
 from base_suites.errors import UserInputError, unknown_choice
 from critics.artifact import atomic_torch_save, save_critic
 from critics.data import REWARDS, TransitionData, load_transitions, make_replay_buffer
-from critics.loss import BACKUPS, CalQLLoss
+from critics.loss import BACKUPS, VALUE_LOSSES, CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
 CHECKPOINT_FORMAT = "libero-elegant/critic-checkpoint/1"
@@ -68,6 +68,7 @@ class TrainConfig:
     backup: str = "policy"  # the TD target's next action (critics.loss.BACKUPS; see CalQLLoss)
     weight_decay: float = 0.0  # decoupled (AdamW) weight decay of the critics' weights only
     mc_weight: float = 0.0  # weight of Q's regression on the Monte-Carlo returns beside TD (CalQLLoss)
+    value_loss: str = "mse"  # or "bce": logit critics classified against target probabilities (CalQLLoss)
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
@@ -82,6 +83,10 @@ class TrainConfig:
             raise unknown_choice("train-critic reward", self.reward, REWARDS)
         if self.backup not in BACKUPS:
             raise unknown_choice("train-critic backup", self.backup, BACKUPS)
+        if self.value_loss not in VALUE_LOSSES:
+            raise unknown_choice("train-critic value_loss", self.value_loss, VALUE_LOSSES)
+        if self.value_loss == "bce" and self.reward != "elegant":
+            raise UserInputError(f"train-critic: value_loss 'bce' needs returns in [0, 1], i.e. reward 'elegant' (got reward {self.reward!r})")
         for name in ("weight_decay", "mc_weight"):
             if not getattr(self, name) >= 0.0:
                 raise UserInputError(f"train-critic: {name} must be >= 0, got {getattr(self, name)}")
@@ -98,6 +103,7 @@ class _Run:
             actor, critic, gamma=data.gamma, n_actions=cfg.n_actions, cql_weight=cfg.cql_weight,
             temperature=cfg.temperature, calibrate=cfg.calibrate, with_lagrange=cfg.with_lagrange,
             target_action_gap=cfg.target_action_gap, backup=cfg.backup, mc_weight=cfg.mc_weight,
+            value_loss=cfg.value_loss,
         )
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         groups = [
@@ -154,7 +160,9 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
-    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added={"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0})
+    # settings added after some checkpoints were written, with the values those runs trained with
+    added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse"}
+    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added)
     if changed:
         raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
                              + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed) + ")")
@@ -208,6 +216,7 @@ def train_critic(
     backup: str = "policy",
     weight_decay: float = 0.0,
     mc_weight: float = 0.0,
+    value_loss: str = "mse",
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -220,7 +229,7 @@ def train_critic(
     annotation's), reward ("step" or "segment") and chunk (actions per scored decision, the chunk length of
     the policy the critic will judge): see `critics.data.load_transitions`; backup ("policy" or "dataset",
     the TD target's next action): see `CalQLLoss`; weight_decay: decoupled weight decay of the critics (not
-    the actor); mc_weight: see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
+    the actor); mc_weight, value_loss: see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -230,7 +239,7 @@ def train_critic(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
         log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
-        backup=backup, weight_decay=weight_decay, mc_weight=mc_weight,
+        backup=backup, weight_decay=weight_decay, mc_weight=mc_weight, value_loss=value_loss,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)

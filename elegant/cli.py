@@ -227,6 +227,8 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hidden", default="256,256", help="hidden layer widths of the critics and the actor, e.g. 64,64")
     p.add_argument("--weight-decay", type=float, default=0.0, help="decoupled weight decay of the critics' weights")
     p.add_argument("--mc-weight", type=float, default=0.0, help="weight of Q's regression on the Monte-Carlo returns beside TD")
+    p.add_argument("--value-loss", default="mse", help="mse, or bce (with --reward elegant): the critics output logits fitted "
+                   "to the target probability by cross-entropy")
     p.add_argument("--resume", action="store_true")
 
 
@@ -238,7 +240,7 @@ def _train_critic(args: argparse.Namespace) -> dict:
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
                         with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk,
                         backup=args.backup, hidden=parse_indices(args.hidden, "--hidden"), weight_decay=args.weight_decay,
-                        mc_weight=args.mc_weight)
+                        mc_weight=args.mc_weight, value_loss=args.value_loss)
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:

@@ -244,3 +244,23 @@ def test_mc_weight_adds_the_regression_on_known_monte_carlo_returns_only():
     known = batch["mc_return"].squeeze(-1)[2:]
     expected = td + 2.0 * (terms.q_data[:, 2:] - known).pow(2).mean(-1).sum(0)
     assert combined.item() == pytest.approx(expected.item(), rel=1e-6) and combined.item() > td.item()
+
+
+def test_bce_value_loss_classifies_logits_against_target_probabilities_and_floors_with_logits():
+    batch = make_batch(mc_return=0.5)  # rewards in [0, 1): probabilities
+    batch["next", "action"] = torch.rand(BATCH, ACT) * 2 - 1
+    loss = make_loss(value_loss="bce", backup="dataset")
+    terms = loss.terms(batch)
+    with torch.no_grad():
+        logits = loss._q(loss.target_qvalue_network_params.data, batch["next", "observation"], batch["next", "action"].unsqueeze(1))
+    alive = ~batch["next", "terminated"].squeeze(-1)
+    # the TD target backs up a probability, sigmoid of the smaller target logit, not the logit itself
+    expected_target = batch["next", "reward"].squeeze(-1) + 0.9 * alive * torch.sigmoid(logits.amin(0).squeeze(-1))
+    assert torch.allclose(terms.target, expected_target)
+    value, _ = loss.qvalue_loss(batch, terms)
+    expected = torch.nn.functional.binary_cross_entropy_with_logits(
+        terms.q_data, terms.target.clamp(0, 1).expand_as(terms.q_data), reduction="none").mean(-1).sum(0)
+    assert value.item() == pytest.approx(expected.item(), rel=1e-6)
+    assert loss._floor(torch.tensor([0.5, 0.0, 1.0])).tolist() == pytest.approx([0.0, -10.0, 10.0])
+    with pytest.raises(ValueError, match="value_loss"):
+        make_loss(value_loss="huber")

@@ -214,6 +214,16 @@ def test_weight_decay_shrinks_the_critics_weights_only_and_binds_a_resume(annota
         train_critic([annotated], str(tmp_path / "bad"), steps=1, weight_decay=-1.0, **TINY)
     with pytest.raises(UserInputError, match="mc_weight must be >= 0"):
         train_critic([annotated], str(tmp_path / "bad"), steps=1, mc_weight=-1.0, **TINY)
+    with pytest.raises(UserInputError, match="value_loss 'bce' needs returns in \\[0, 1\\], i.e. reward 'elegant'"):
+        train_critic([annotated], str(tmp_path / "bad"), steps=1, value_loss="bce", reward="segment", **TINY)
+
+
+def test_an_elegant_success_critic_with_the_bce_value_loss_trains_and_records_it(annotated, tmp_path):
+    summary = train_critic([annotated], str(tmp_path / "bce"), steps=4, reward="elegant", value_loss="bce", gamma=0.99, **TINY)
+    assert all(np.isfinite(v) for v in summary["final"].values())
+    with open(os.path.join(summary["out"], "critic.json")) as f:
+        training = json.load(f)["training"]
+    assert (training["reward"], training["value_loss"]) == ("elegant", "bce")
 
 
 def test_a_chunk_critic_scores_flattened_chunks_normalised_step_by_step(annotated, tmp_path):
