@@ -14,7 +14,9 @@ Each step t of each demo becomes one transition, in TorchRL's layout (batch = tr
     next/reward        (1,)  float32  the violation penalty: 0 where all four ITCs hold, -1 where one
                                       is violated, judged per step (r_t - 1 of the elegance reward r_t,
                                       `reward="step"`) or per 25-frame window (`reward="segment"`: every
-                                      step of a window that violates a criterion gets -1)
+                                      step of a window that violates a criterion gets -1); with
+                                      `reward="elegant"` instead 1 at the last step of an elegant
+                                      success, else 0 (see `_elegant_success`)
     next/done          (1,)  bool     True at the last step of a demo
     next/terminated    (1,)  bool     True at the last step of a demo that reached the task goal
     next/truncated     (1,)  bool     True at the last step of a demo that did not

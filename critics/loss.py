@@ -291,8 +291,9 @@ class CalQLLoss(LossModule):
 
     # ---- the loss terms ----------------------------------------------------------------------
     def qvalue_loss(self, tensordict: TensorDictBase, terms: CalQLTerms | None = None) -> tuple[Tensor, dict]:
-        """TD(0) regression of every critic on dataset actions (mean squared error, summed over critics),
-        plus `mc_weight` times the same regression on the Monte-Carlo returns."""
+        """TD(0) fit of every critic on dataset actions (`_fit`: squared error, or cross-entropy of logits with
+        value_loss "bce"; mean over the batch, summed over critics), plus `mc_weight` times the same fit on
+        the Monte-Carlo returns."""
         t = self._terms_of(tensordict, terms)
         loss = self._fit(t.q_data, t.target).mean(-1).sum(0)
         if self.mc_weight > 0:

@@ -226,7 +226,7 @@ def train_critic(
     one); checkpoint_every / log_every: steps between checkpoints / metrics rows; n_actions: N of the
     uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
     cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
-    annotation's), reward ("step" or "segment") and chunk (actions per scored decision, the chunk length of
+    annotation's), reward ("step", "segment" or "elegant") and chunk (actions per scored decision, the chunk length of
     the policy the critic will judge): see `critics.data.load_transitions`; backup ("policy" or "dataset",
     the TD target's next action): see `CalQLLoss`; weight_decay: decoupled weight decay of the critics (not
     the actor); mc_weight, value_loss: see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.

@@ -125,7 +125,8 @@ def _rollouts(args: argparse.Namespace) -> dict:
     from elegant.rollouts import collect_rollouts
 
     return collect_rollouts(args.suite, _task_list(args.tasks), args.policy, args.episodes, args.out, explore=args.explore,
-                            explore_at=parse_indices(args.explore_at, "--explore-at"), trust_radius=args.trust_radius, init_states=parse_indices(args.init_states, "--init-states"),
+                            explore_at=parse_indices(args.explore_at, "--explore-at"), trust_radius=args.trust_radius,
+                            init_states=parse_indices(args.init_states, "--init-states"),
                             seed=args.seed, max_steps=args.max_steps, resume=args.resume)
 
 

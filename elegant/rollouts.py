@@ -49,7 +49,7 @@ class _PolicySource:
     def begin(self, env: LiberoEnv, episode: int, reset_seed: int) -> None:
         self.agent.reset(env.metadata, seed=reset_seed)
         if self.explore_at is not None:
-            self.agent.random_steps = {branch_step(self.explore_at, episode, self.n_starts)}
+            self.agent.random_steps = frozenset({branch_step(self.explore_at, episode, self.n_starts)})
 
     def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         return self.agent(obs)
