@@ -30,6 +30,7 @@ from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
 from base_suites.seeds import derive_seed
+from elegant.episode_log import EpisodeLog
 from elegant.jiti import JITI
 from elegant.metrics import summarize
 from elegant.report import write_run_report
@@ -91,37 +92,6 @@ def open_critic(critic: Any) -> Any:
 
         return critics.load(critic)
     return critic
-
-
-class EpisodeLog:
-    """RUN/episodes.jsonl: finished episodes, one JSON line each, flushed as each finishes."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.records: list[dict[str, Any]] = []
-        if path.exists():
-            self._read()
-
-    def _read(self) -> None:
-        lines = self.path.read_text().split("\n")
-        complete = lines[:-1]  # everything before the last newline; a crash may leave a partial last line
-        for n, line in enumerate(complete, 1):
-            try:
-                self.records.append(json.loads(line))
-            except json.JSONDecodeError:
-                raise UserInputError(f"{self.path}: line {n} is not valid JSON; the run directory is damaged") from None
-        if lines[-1]:
-            atomic_write(self.path, "".join(line + "\n" for line in complete))
-
-    def done(self) -> set[tuple[str, int]]:
-        return {(r["task"], int(r["episode"])) for r in self.records}
-
-    def append(self, record: dict[str, Any]) -> None:
-        with open(self.path, "a") as f:
-            f.write(json.dumps(record) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-        self.records.append(record)
 
 
 def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:

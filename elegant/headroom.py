@@ -20,7 +20,8 @@ Summarised over decision points: how often the choice matters at all, how often 
 often the critic's choice does (its hit rate), against a uniformly random eligible candidate; on
 base-elegant episodes, how often each choice spoils the episode; and, where the eligible candidates'
 outcomes differ, how well the critic's Q separates those that led to an elegant success from those that
-did not (`outcome_auroc`, 0.5 = chance). `rescore_headroom` recomputes all of it for another critic
+did not (`outcome_auroc`, 0.5 = chance, with its standard error over the points, `outcome_auroc_se`).
+`rescore_headroom` recomputes all of it for another critic
 from the stored states and candidates.
 """
 from __future__ import annotations
@@ -165,6 +166,9 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
         "random_harm": rate(random_harm),
         "rescuable_episodes": rate(rescuable),
         "outcome_auroc": rate(auroc),
+        # spread of the per-point AUROCs over sqrt(points): with the 20-odd points a task's branches give,
+        # critics 0.1 apart may not differ
+        "outcome_auroc_se": float(np.std(auroc, ddof=1) / np.sqrt(len(auroc))) if len(auroc) > 1 else None,
         "trust_radius": trust_radius,
     }
 

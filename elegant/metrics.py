@@ -12,6 +12,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from scipy.stats import binomtest
 
 from annotations.format import CRITERIA
 from base_suites.errors import UserInputError
@@ -42,6 +43,54 @@ def violation_rates(records: Sequence[Record], criteria: Iterable[str] = CRITERI
     return {c: float(np.mean([c in r["violated"] for r in records])) for c in criteria}
 
 
+def success_with_violation(records: Sequence[Record], criteria: Iterable[str] = CRITERIA) -> dict[str, float]:
+    """Per criterion, the fraction of episodes that succeeded with a violated window of it: where the gap
+    between success and ESR comes from (an episode with two violated criteria counts under both)."""
+    _require(records)
+    return {c: float(np.mean([bool(r["success"]) and c in r["violated"] for r in records])) for c in criteria}
+
+
+def rate_interval(hits: int, n: int, confidence: float = 0.95) -> list[float]:
+    """Wilson score interval of a rate of `hits` in `n` episodes: at the 25-50 episodes a task gets here,
+    a success rate or ESR is uncertain by +-10-20 points, and the interval says so."""
+    if n < 1:
+        raise UserInputError("no episodes to compute an interval from")
+    interval = binomtest(int(hits), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
+    return [float(interval.low), float(interval.high)]
+
+
+def paired_comparison(before: Sequence[Record], after: Sequence[Record], key: str) -> dict[str, Any]:
+    """Two runs on the same starts (same seed, so the same init state and reset seed per episode), compared
+    on the boolean record field `key` ("success" or "elegant") episode by episode.
+
+    Pairs are the episodes with the same task and episode index whose init_index and seed agree. Returns
+    pairs, the rates before and after over the pairs, difference (after - before), only_before /
+    only_after (pairs where only that run has `key`) and p_value: McNemar's exact test, the two-sided
+    binomial test of only_after against only_before (1.0 where they are all equal). Pairing removes the
+    start-to-start variance that dominates the difference of two independent 25-episode rates."""
+    def start(r: Record) -> tuple:
+        return r["task"], int(r["episode"])
+
+    earlier = {start(r): r for r in before}
+    pairs = [(earlier[start(r)], r) for r in after
+             if start(r) in earlier and (earlier[start(r)].get("init_index"), earlier[start(r)].get("seed")) == (r.get("init_index"), r.get("seed"))]
+    if not pairs:
+        return {"pairs": 0}
+    a = np.array([bool(p[key]) for p, _ in pairs])
+    b = np.array([bool(q[key]) for _, q in pairs])
+    only_before, only_after = int(np.sum(a & ~b)), int(np.sum(b & ~a))
+    discordant = only_before + only_after
+    return {
+        "pairs": len(pairs),
+        "before": float(a.mean()),
+        "after": float(b.mean()),
+        "difference": float(b.mean() - a.mean()),
+        "only_before": only_before,
+        "only_after": only_after,
+        "p_value": float(binomtest(only_after, discordant).pvalue) if discordant else 1.0,
+    }
+
+
 def interventions_per_episode(records: Sequence[Record]) -> float:
     """Mean number of steps per episode at which JITI re-ranked candidates."""
     _require(records)
@@ -62,8 +111,11 @@ def _block(records: Sequence[Record]) -> dict[str, Any]:
     return {
         "episodes": len(records),
         "success_rate": success_rate(records),
+        "success_ci95": rate_interval(sum(bool(r["success"]) for r in records), len(records)),
         "esr": elegant_success_rate(records),
+        "esr_ci95": rate_interval(sum(bool(r["elegant"]) for r in records), len(records)),
         "itc_violation_rate": violation_rates(records),
+        "success_with_violation": success_with_violation(records),
         "interventions_per_episode": interventions_per_episode(records),
         "overrides_per_episode": float(np.mean([r["overrides"] for r in records])),
         "steps_per_episode": float(np.mean([r["steps"] for r in records])),

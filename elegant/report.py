@@ -22,8 +22,9 @@ import numpy as np
 from annotations.format import CRITERIA, SEGMENT_LENGTH
 from base_suites.atomic import atomic_write
 from base_suites.errors import UserInputError
+from elegant.episode_log import EpisodeLog
 from elegant.jiti import choose_candidate, eligible_candidates
-from elegant.metrics import robustness_metrics
+from elegant.metrics import paired_comparison, robustness_metrics, summarize
 
 
 def _save(fig, path: Path) -> Path:
@@ -137,13 +138,18 @@ def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: P
 
 # ---- one run ---------------------------------------------------------------------------------------
 
+def _with_interval(rate: float, interval: Sequence[float]) -> str:
+    return f"{_pct(rate)} [{_pct(interval[0])}, {_pct(interval[1])}]"
+
+
 def _summary_rows(s: Mapping[str, Any]) -> list[list[str]]:
     rows = [
         ["episodes", str(s["episodes"])],
-        ["success rate", _pct(s["success_rate"])],
-        ["ESR (elegant success rate)", _pct(s["esr"])],
+        ["success rate [95% interval]", _with_interval(s["success_rate"], s["success_ci95"])],
+        ["ESR (elegant success rate) [95% interval]", _with_interval(s["esr"], s["esr_ci95"])],
     ]
     rows += [[f"violation rate: {c}", _pct(v)] for c, v in s["itc_violation_rate"].items()]
+    rows += [[f"succeeded, but violated: {c}", _pct(v)] for c, v in s["success_with_violation"].items()]
     rows += [
         ["interventions / episode", f"{s['interventions_per_episode']:.2f}"],
         ["overrides / episode (executed action != base)", f"{s['overrides_per_episode']:.2f}"],
@@ -193,7 +199,9 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
         "",
         _table(["metric", "value"], _summary_rows(summary)),
         "",
-        "Violation rate: fraction of episodes with at least one violated 25-step window of the criterion. "
+        "Violation rate: fraction of episodes with at least one violated 25-step window of the criterion; "
+        "'succeeded, but violated': the fraction that reached the goal with such a window, which is where "
+        "the gap between success and ESR comes from. Intervals: Wilson score, 95%. "
         "Decision overhead: JITI's time per step over the env's step time.",
         "",
         "## Per task",
@@ -214,14 +222,33 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
 
 # ---- several runs ----------------------------------------------------------------------------------
 
-def _load_summary(run_dir: Path) -> dict[str, Any]:
+def _load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """A finished run's summary and episode records. The metrics are recomputed from the records, so runs
+    written before a metric existed compare with it too."""
     path = run_dir / "summary.json"
     if not path.exists():
         raise UserInputError(f"{run_dir}: no summary.json; expected the directory of a finished `elegant eval` run")
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError:
-        raise UserInputError(f"{path}: not valid JSON") from None
+        config = json.loads(path.read_text())["config"]
+    except (json.JSONDecodeError, KeyError, TypeError):
+        raise UserInputError(f"{path}: not the JSON summary of an `elegant eval` run (no field 'config')") from None
+    records = EpisodeLog(run_dir / "episodes.jsonl").records
+    if not records:
+        raise UserInputError(f"{run_dir / 'episodes.jsonl'}: no finished episodes")
+    return {"config": config, **summarize(records)}, records
+
+
+def _paired_rows(labels: Sequence[str], runs: Sequence[Sequence[Mapping[str, Any]]]) -> list[dict[str, Any]]:
+    """Every later run against the first, episode by episode on their shared starts."""
+    rows = []
+    for label, records in zip(labels[1:], runs[1:]):
+        rows.append({"run": label, **{key: paired_comparison(runs[0], records, key) for key in ("success", "elegant")}})
+    return rows
+
+
+def _paired_cell(p: Mapping[str, Any]) -> str:
+    return (f"{100 * p['difference']:+.1f} points ({p['only_after']} gained, {p['only_before']} lost; p = {p['p_value']:.3g})"
+            if p["pairs"] else "no shared starts")
 
 
 def perturbation_axis(perturbation: str | None) -> str:
@@ -253,14 +280,16 @@ def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike | None = None) -> dict[str, Any]:
     """Side-by-side comparison of finished runs (`elegant report RUN_A RUN_B ...`).
 
-    Returns {"runs": [{label, dir, config}], "markdown": str, "robustness": {...}, "files": [...]}. With
+    Returns {"runs": [{label, dir, config}], "markdown": str, "paired": [...], "robustness": {...}, "files":
+    [...]}; "paired" compares every later run with the first on their shared starts
+    (`elegant.metrics.paired_comparison` of success and of elegant success). With
     `out`, writes out/comparison.md and out/comparison.png (grouped bars of success and ESR per task);
     without it nothing is written.
     """
     if not run_dirs:
         raise UserInputError("report: expected at least one run directory")
     dirs = [Path(d) for d in run_dirs]
-    summaries = [_load_summary(d) for d in dirs]
+    summaries, records = zip(*(_load_run(d) for d in dirs))
     names = [d.name or str(d) for d in dirs]
     if len(set(names)) < len(names):
         names = [str(d) for d in dirs]
@@ -275,6 +304,13 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
 
     lines = ["# Run comparison", "", _table(["metric", *labels], rows), "", "## Success / ESR per task", "",
              _table(["task", *labels], [[t, *(cell(s, t) for s in summaries)] for t in tasks])]
+    paired = _paired_rows(labels, records)
+    if paired:
+        lines += ["", f"## Paired with {labels[0]}", "",
+                  "Episodes of two runs with the same seed start alike; each cell counts the starts where only one "
+                  "of the two runs succeeded (or succeeded elegantly), with McNemar's exact p-value.", "",
+                  _table(["run", "episode pairs", "success", "ESR"],
+                         [[p["run"], p["success"]["pairs"], _paired_cell(p["success"]), _paired_cell(p["elegant"])] for p in paired])]
     robustness = _robustness(summaries)
     for name, r in robustness.items():
         axes = list(r["success"]["acc"])
@@ -298,6 +334,7 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
     return {
         "runs": [{"label": l, "dir": str(d), "config": s["config"]} for l, d, s in zip(labels, dirs, summaries)],
         "markdown": markdown,
+        "paired": paired,
         "robustness": robustness,
         "files": [str(f) for f in files],
     }

@@ -33,8 +33,10 @@ def test_summary_counts_reachable_critic_and_random_choices_within_the_trust_rad
     # eligible outcomes differ at the first point (the elegant one scored between the two others: 0.5)
     # and on the elegant episode (both elegant ones scored below the spoiling one: 0)
     assert s["outcome_auroc"] == pytest.approx(0.25)
-    # without a trust radius the far elegant candidate is the critic's choice
-    assert summarize_headroom([inelegant], trust_radius=None)["critic_hit"] == 0.5
+    assert s["outcome_auroc_se"] == pytest.approx(np.std([0.5, 0.0], ddof=1) / np.sqrt(2))
+    # without a trust radius the far elegant candidate is the critic's choice; one point has no spread
+    alone = summarize_headroom([inelegant], trust_radius=None)
+    assert alone["critic_hit"] == 0.5 and alone["outcome_auroc"] == 0.75 and alone["outcome_auroc_se"] is None
 
 
 class Plunge:

@@ -9,8 +9,11 @@ from elegant.metrics import (
     elegant_success_rate,
     interventions_per_episode,
     lifelong_metrics,
+    paired_comparison,
+    rate_interval,
     robustness_metrics,
     success_rate,
+    success_with_violation,
     summarize,
     violation_rates,
 )
@@ -46,6 +49,40 @@ def test_summary_overall_and_per_task():
     a, b = s["per_task"]["s/0"], s["per_task"]["s/1"]
     assert (a["success_rate"], a["esr"], a["itc_violation_rate"]["collision"], a["interventions_per_episode"]) == (1.0, 0.5, 0.5, 3.0)
     assert (b["success_rate"], b["esr"], b["itc_violation_rate"]["alignment"]) == (0.0, 0.0, 1.0)
+
+
+def test_success_with_violation_counts_only_successful_episodes():
+    # the failed episode's collision does not count: it explains a lost success, not a lost elegant success
+    assert success_with_violation(RECORDS) == pytest.approx({"sequence": 0.0, "pose_accuracy": 0.0, "alignment": 0.0, "collision": 1 / 3})
+    assert summarize(RECORDS)["success_with_violation"]["collision"] == pytest.approx(1 / 3)
+
+
+def test_rate_interval_is_wilsons():
+    z, n, p = 1.959963984540054, 25, 16 / 25
+    centre, half = (p + z * z / (2 * n)) / (1 + z * z / n), z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    assert rate_interval(16, 25) == pytest.approx([centre - half, centre + half])
+    low, high = rate_interval(0, 10)
+    assert low == 0.0 and 0.2 < high < 0.35  # never a zero-width interval at 0 of 10
+    assert summarize(RECORDS)["esr_ci95"] == pytest.approx(rate_interval(1, 3))
+    with pytest.raises(UserInputError, match="no episodes"):
+        rate_interval(0, 0)
+
+
+def start(episode, success, elegant, seed=7, task="s/0"):
+    return {"task": task, "episode": episode, "init_index": episode + 25, "seed": seed, "success": success, "elegant": elegant}
+
+
+def test_paired_comparison_pairs_identical_starts_and_applies_mcnemar():
+    before = [start(e, e < 4, False) for e in range(10)]
+    after = [start(e, e < 4, e < 6) for e in range(10)]
+    after += [start(10, True, True)]  # no partner in `before`
+    after[9] = start(9, True, True, seed=8)  # same episode index, another reset seed: not the same start
+    elegant = paired_comparison(before, after, "elegant")
+    assert elegant["pairs"] == 9 and (elegant["only_after"], elegant["only_before"]) == (6, 0)
+    assert elegant["difference"] == pytest.approx(6 / 9) and elegant["p_value"] == pytest.approx(2 * 0.5 ** 6)
+    success = paired_comparison(before, after, "success")
+    assert success["difference"] == 0.0 and success["p_value"] == 1.0  # no discordant pair
+    assert paired_comparison(before, [start(0, True, True, task="s/1")], "success") == {"pairs": 0}
 
 
 def test_no_records_is_a_user_error():

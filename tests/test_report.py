@@ -32,7 +32,7 @@ def make_run(path, mode, successes, perturbation=None, with_q=True):
         }
         name = f"traces/libero_goal_{i % 2}_{i}.json"
         (path / name).write_text(json.dumps(trace))
-        records.append({"task": trace["task"], "episode": i, "success": ok, "elegant": trace["elegant"], "violated": trace["violated"],
+        records.append({"task": trace["task"], "episode": i, "init_index": i, "seed": 100 + i, "success": ok, "elegant": trace["elegant"], "violated": trace["violated"],
                         "interventions": sum(intervened), "overrides": 1, "steps": steps, "decision_time": 1e-4,
                         "env_step_time": 1e-2, "trace": name})
     config = {"suite": "libero_goal", "tasks": [0, 1], "policy": "/p", "critic": "/c", "mode": mode, "episodes": 2, "seed": 0,
@@ -40,6 +40,7 @@ def make_run(path, mode, successes, perturbation=None, with_q=True):
               "jiti": {"window": 10, "threshold": 1.0, "threshold_mode": "absolute", "n_candidates": 16, "policy_adapter": "BCPolicy"}}
     summary = {"config": config, **summarize(records)}
     (path / "summary.json").write_text(json.dumps(summary))
+    (path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
     return summary, records
 
 
@@ -55,7 +56,8 @@ def test_run_report_writes_markdown_and_plots(tmp_path):
     assert_png(tmp_path / "run" / "success_esr.png")
     assert_png(tmp_path / "run" / "q_trace.png")
     md = (tmp_path / "run" / "report.md").read_text()
-    assert "| success rate | 75.0% |" in md and "| ESR (elegant success rate) | 50.0% |" in md
+    assert "| success rate [95% interval] | 75.0% [30.1%, 95.4%] |" in md and "| ESR (elegant success rate) [95% interval] | 50.0% [15.0%, 85.0%] |" in md
+    assert "| succeeded, but violated: collision | 0.0% |" in md
     assert "| libero_goal/1 | 2 | 50.0% | 0.0% |" in md and "## Q trace: libero_goal/0, episode 0" in md
 
 
@@ -72,12 +74,34 @@ def test_compare_runs_side_by_side_with_robustness(tmp_path):
     make_run(tmp_path / "base", "base", [True, False, True, False])
     result = compare_runs([tmp_path / "ori", tmp_path / "init", tmp_path / "base"], out=tmp_path / "cmp")
     assert [r["label"] for r in result["runs"]] == ["ori (jiti)", "init (jiti)", "base (base)"]
-    assert "| success rate | 75.0% | 25.0% | 50.0% |" in result["markdown"]
+    assert "| success rate [95% interval] | 75.0% [30.1%, 95.4%] | 25.0% [4.6%, 69.9%] | 50.0% [15.0%, 85.0%] |" in result["markdown"]
     (group,) = result["robustness"].values()  # the base run has no unperturbed partner of its own mode
     assert group["success"]["gap"] == {"init": 0.5} and group["success"]["pro"] == 0.25
     assert group["elegant"]["acc_ori"] == 0.5 and group["elegant"]["acc"] == {"init": 0.25}
     assert_png(tmp_path / "cmp" / "comparison.png")
     assert (tmp_path / "cmp" / "comparison.md").read_text().startswith(result["markdown"])
+
+
+def test_compare_runs_pairs_later_runs_with_the_first_on_shared_starts(tmp_path):
+    make_run(tmp_path / "base", "base", [True, False, False, False])
+    make_run(tmp_path / "jiti", "jiti", [True, True, True, False])
+    result = compare_runs([tmp_path / "base", tmp_path / "jiti"])
+    (paired,) = result["paired"]
+    assert paired["run"] == "jiti (jiti)" and paired["success"]["pairs"] == 4
+    assert (paired["success"]["only_after"], paired["success"]["only_before"]) == (2, 0) and paired["success"]["p_value"] == 0.5
+    assert paired["elegant"]["difference"] == 0.25  # episode 2 (even index) turns elegant
+    assert "| jiti (jiti) | 4 | +50.0 points (2 gained, 0 lost; p = 0.5) | +25.0 points (1 gained, 0 lost; p = 1) |" in result["markdown"]
+
+
+def test_compare_runs_recomputes_metrics_from_the_episodes(tmp_path):
+    summary, _ = make_run(tmp_path / "old", "base", [True, False])
+    for key in ("success_ci95", "esr_ci95", "success_with_violation"):  # a run written before these existed
+        del summary[key]
+    (tmp_path / "old" / "summary.json").write_text(json.dumps(summary))
+    assert "| success rate [95% interval] | 50.0% [9.5%, 90.5%] |" in compare_runs([tmp_path / "old"])["markdown"]
+    (tmp_path / "old" / "episodes.jsonl").write_text("")
+    with pytest.raises(UserInputError, match="episodes.jsonl: no finished episodes"):
+        compare_runs([tmp_path / "old"])
 
 
 def test_compare_runs_without_out_writes_nothing_and_refuses_non_runs(tmp_path):

@@ -1,0 +1,45 @@
+"""RUN/episodes.jsonl, the append-only record of a run's finished episodes.
+
+Its own module because both the evaluation runner (which appends) and the reports (which pair the
+episodes of several runs) read it, and the runner imports the reports.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from base_suites.atomic import atomic_write
+from base_suites.errors import UserInputError
+
+
+class EpisodeLog:
+    """RUN/episodes.jsonl: finished episodes, one JSON line each, flushed as each finishes."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.records: list[dict[str, Any]] = []
+        if path.exists():
+            self._read()
+
+    def _read(self) -> None:
+        lines = self.path.read_text().split("\n")
+        complete = lines[:-1]  # everything before the last newline; a crash may leave a partial last line
+        for n, line in enumerate(complete, 1):
+            try:
+                self.records.append(json.loads(line))
+            except json.JSONDecodeError:
+                raise UserInputError(f"{self.path}: line {n} is not valid JSON; the run directory is damaged") from None
+        if lines[-1]:
+            atomic_write(self.path, "".join(line + "\n" for line in complete))
+
+    def done(self) -> set[tuple[str, int]]:
+        return {(r["task"], int(r["episode"])) for r in self.records}
+
+    def append(self, record: dict[str, Any]) -> None:
+        with open(self.path, "a") as f:
+            f.write(json.dumps(record) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        self.records.append(record)
