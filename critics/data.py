@@ -74,6 +74,7 @@ class TransitionData:
     normalization: Normalization
     gamma: float
     n_demos: int
+    explored: torch.Tensor  # (B,) bool: the transition's action is one a rollout drew at random (`explored_steps`)
     chunk: int = 1
 
     @property
@@ -107,6 +108,18 @@ class _RawDemo:
     mc_return: np.ndarray
     window_kept: np.ndarray  # per step: did its 25-frame window keep all four criteria
     success: bool
+    explored: np.ndarray  # per step: was its action (chunk) an explored decision's
+
+
+def _explored_mask(attrs: dict, steps: int, where: str) -> np.ndarray:
+    """The steps a rollout took a random candidate at (attr `explored_steps`, written by `elegant rollouts`);
+    none for demos without it."""
+    mask = np.zeros(steps, dtype=bool)
+    listed = attrs.get("explored_steps") or []
+    if not isinstance(listed, list) or not all(isinstance(t, int) and 0 <= t < steps for t in listed):
+        raise UserInputError(f"{where}: attr explored_steps must list step indices in [0, {steps}), got {listed!r}")
+    mask[listed] = True
+    return mask
 
 
 def _annotation_gamma(f: DemoFile) -> float:
@@ -161,6 +174,7 @@ def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
             obs=demo.obs, next_obs=demo.next_obs, actions=np.asarray(demo.actions, dtype=np.float32),
             reward=np.asarray(demo.elegance_reward, dtype=np.float32), mc_return=np.asarray(demo.mc_return, dtype=np.float32),
             window_kept=np.logical_and.reduce(list(step_window_labels(demo, length, where).values())), success=bool(demo.rewards[-1] > 0),
+            explored=_explored_mask(demo.attrs, t, where),
         ))
     return demos
 
@@ -331,7 +345,8 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
         batch_size=[len(train_reward)],
     )
     transitions = chunk_transitions(transitions, lengths, int(chunk), gamma)
-    return TransitionData(transitions, encoder, normalization, float(gamma), len(demos), int(chunk))
+    explored = torch.from_numpy(np.concatenate([d.explored for d in demos]))
+    return TransitionData(transitions, encoder, normalization, float(gamma), len(demos), explored, int(chunk))
 
 
 def make_replay_buffer(transitions: TensorDict, batch_size: int, generator: torch.Generator) -> TensorDictReplayBuffer:

@@ -69,6 +69,11 @@ class TrainConfig:
     weight_decay: float = 0.0  # decoupled (AdamW) weight decay of the critics' weights only
     mc_weight: float = 0.0  # weight of Q's regression on the Monte-Carlo returns beside TD (CalQLLoss)
     value_loss: str = "mse"  # or "bce": logit critics classified against target probabilities (CalQLLoss)
+    explored_fraction: float = 0.0  # share of each batch drawn from the explored decisions' transitions
+
+    @property
+    def explored_per_batch(self) -> int:
+        return round(self.batch_size * self.explored_fraction)
 
     def validate(self) -> None:
         for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
@@ -90,6 +95,9 @@ class TrainConfig:
         for name in ("weight_decay", "mc_weight"):
             if not getattr(self, name) >= 0.0:
                 raise UserInputError(f"train-critic: {name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 <= self.explored_fraction < 1.0 or (self.explored_fraction > 0 and not 0 < self.explored_per_batch < self.batch_size):
+            raise UserInputError(f"train-critic: explored_fraction must lie in [0, 1) and leave at least one row of each kind in a batch "
+                                 f"of {self.batch_size}, got {self.explored_fraction}")
 
 
 class _Run:
@@ -117,11 +125,25 @@ class _Run:
             groups.append({"params": [self.loss.log_alpha_prime], "lr": cfg.critic_lr})
         self.optimizer = torch.optim.Adam(groups, decoupled_weight_decay=True)  # with no decay, plain Adam
         self.generator = torch.Generator().manual_seed(cfg.seed)
-        self.buffer = make_replay_buffer(data.transitions, cfg.batch_size, self.generator)
+        self.buffer = make_replay_buffer(data.transitions, cfg.batch_size - cfg.explored_per_batch, self.generator)
+        # Explored decisions are the only transitions whose action was drawn independently of the state;
+        # on the others the policy's action is a function of the state, and a critic can score the action
+        # by what it says about the state rather than by what it does. Oversampling them lets the critic
+        # learn what an action changes. They are rare (about one row in 90 of branch rollouts).
+        self.explored_buffer = None
+        if cfg.explored_per_batch:
+            rows = data.explored.nonzero().flatten()
+            if not len(rows):
+                raise UserInputError(f"train-critic: explored_fraction {cfg.explored_fraction} but no demo in {', '.join(cfg.paths)} has "
+                                     "explored_steps (record some with `elegant rollouts --explore` or `--explore-at`)")
+            self.explored_buffer = make_replay_buffer(data.transitions[rows], cfg.explored_per_batch, self.generator)
 
     def step(self) -> TensorDictBase:
         """One gradient step on a fresh batch; returns the loss module's output (losses and diagnostics)."""
-        losses = self.loss(self.buffer.sample())
+        batch = self.buffer.sample()
+        if self.explored_buffer is not None:
+            batch = torch.cat([batch, self.explored_buffer.sample()])
+        losses = self.loss(batch)
         total = sum(v for k, v in losses.items() if k.startswith("loss_"))
         self.optimizer.zero_grad(set_to_none=True)
         total.backward()
@@ -161,7 +183,7 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
     # settings added after some checkpoints were written, with the values those runs trained with
-    added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse"}
+    added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse", "explored_fraction": 0.0}
     changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added)
     if changed:
         raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
@@ -217,6 +239,7 @@ def train_critic(
     weight_decay: float = 0.0,
     mc_weight: float = 0.0,
     value_loss: str = "mse",
+    explored_fraction: float = 0.0,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -229,7 +252,9 @@ def train_critic(
     annotation's), reward ("step", "segment" or "elegant") and chunk (actions per scored decision, the chunk length of
     the policy the critic will judge): see `critics.data.load_transitions`; backup ("policy" or "dataset",
     the TD target's next action): see `CalQLLoss`; weight_decay: decoupled weight decay of the critics (not
-    the actor); mc_weight, value_loss: see `CalQLLoss`. Learning rates and tau are `TrainConfig`'s.
+    the actor); mc_weight, value_loss: see `CalQLLoss`; explored_fraction: the share of each batch drawn
+    from the transitions of explored decisions (`explored_steps` of `elegant rollouts` files), the rest
+    uniformly from all. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -239,7 +264,7 @@ def train_critic(
         paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
         log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
-        backup=backup, weight_decay=weight_decay, mc_weight=mc_weight, value_loss=value_loss,
+        backup=backup, weight_decay=weight_decay, mc_weight=mc_weight, value_loss=value_loss, explored_fraction=explored_fraction,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)

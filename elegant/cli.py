@@ -230,6 +230,8 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mc-weight", type=float, default=0.0, help="weight of Q's regression on the Monte-Carlo returns beside TD")
     p.add_argument("--value-loss", default="mse", help="mse, or bce (with --reward elegant): the critics output logits fitted "
                    "to the target probability by cross-entropy")
+    p.add_argument("--explored-fraction", type=float, default=0.0,
+                   help="share of each batch drawn from explored decisions (rollouts' explored_steps), e.g. 0.5")
     p.add_argument("--resume", action="store_true")
 
 
@@ -241,7 +243,7 @@ def _train_critic(args: argparse.Namespace) -> dict:
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
                         with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk,
                         backup=args.backup, hidden=parse_indices(args.hidden, "--hidden"), weight_decay=args.weight_decay,
-                        mc_weight=args.mc_weight, value_loss=args.value_loss)
+                        mc_weight=args.mc_weight, value_loss=args.value_loss, explored_fraction=args.explored_fraction)
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:

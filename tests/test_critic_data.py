@@ -33,11 +33,12 @@ def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
 
 def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9, labelled: bool = True,
                     lengths: tuple[int, int] = (30, 60), corrupt_return: bool = False, violation_rate: float = 0.01,
-                    violate_at: dict[int, int] | None = None) -> str:
+                    violate_at: dict[int, int] | None = None, explored_at: dict[int, list] | None = None) -> str:
     """An annotated file of two libero_object tasks with random states, actions and ITC labels.
 
     Demo i belongs to task i % 2 and succeeds when i % 3 != 2; actions use [-0.5, 0.5] in every dimension.
-    Each step violates each criterion with `violation_rate`; `violate_at` {demo: step} adds a collision there.
+    Each step violates each criterion with `violation_rate`; `violate_at` {demo: step} adds a collision there;
+    `explored_at` {demo: steps} records those steps as explored decisions, as `elegant rollouts` does.
     """
     rng = np.random.default_rng(seed)
     attrs = {"annotation": {"schema_version": 1, "gamma": gamma, "segment_length": SEGMENT_LENGTH, "itc_params": {}}} if labelled else {}
@@ -55,7 +56,8 @@ def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9
         demo = Demo(
             name="", actions=rng.uniform(-0.5, 0.5, size=(t, 7)), states=rng.normal(size=(t, 4)),
             obs=states[:-1], next_obs=states[1:], rewards=rewards, dones=dones,
-            attrs={"suite": "libero_object", "task_index": task, "task_name": f"task {task}", "success": success},
+            attrs={"suite": "libero_object", "task_index": task, "task_name": f"task {task}", "success": success,
+                   **({"explored_steps": explored_at[i]} if i in (explored_at or {}) else {})},
         )
         if labelled:
             itc = {c: rng.random(t) >= violation_rate for c in CRITERIA}
@@ -193,6 +195,17 @@ def test_elegant_reward_pays_an_elegant_success_and_ends_at_the_first_violating_
     assert chunked["next", "terminated"][60 + 20].item() and chunked["steps_to_next_obs"][60 + 20].item() == 6  # ends with step 25
     assert not chunked["next", "terminated"][60 + 8].item() and chunked["next", "reward"][60 + 8].item() == 0.0
     assert chunked["next", "reward"][52].item() == pytest.approx(0.9 ** 7)  # the chunk that ends the elegant success
+
+
+def test_explored_decisions_are_marked_on_their_rows(tmp_path):
+    path = write_annotated(tmp_path / "x.hdf5", n_demos=3, lengths=(30, 31), explored_at={0: [3, 10], 2: [0]})
+    for chunk in (1, 8):  # chunk transitions keep one row per step
+        data = load_transitions([path], chunk=chunk)
+        assert data.explored.dtype == torch.bool and len(data.explored) == len(data.transitions)
+        assert torch.nonzero(data.explored).flatten().tolist() == [3, 10, 60]
+    bad = write_annotated(tmp_path / "bad.hdf5", n_demos=2, lengths=(30, 31), explored_at={1: [30]})
+    with pytest.raises(UserInputError, match=r"data/demo_1: attr explored_steps must list step indices in \[0, 30\), got \[30\]"):
+        load_transitions([bad])
 
 
 def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):

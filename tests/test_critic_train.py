@@ -218,6 +218,37 @@ def test_weight_decay_shrinks_the_critics_weights_only_and_binds_a_resume(annota
         train_critic([annotated], str(tmp_path / "bad"), steps=1, value_loss="bce", reward="segment", **TINY)
 
 
+def test_explored_fraction_fills_its_share_of_every_batch_with_explored_decisions(tmp_path):
+    from critics.data import load_transitions
+    from critics.train import TrainConfig, _Run
+
+    path = write_annotated(tmp_path / "x.hdf5", n_demos=4, explored_at={0: [2, 5], 1: [0], 3: [7]})
+    data = load_transitions([path])
+    explored = {tuple(row.tolist()) for row in data.transitions["observation"][data.explored]}
+    run = _Run(TrainConfig(paths=[path], steps=1, batch_size=8, hidden=[16], n_actions=2, explored_fraction=0.25), data)
+    batches = []
+    forward = run.loss.forward
+    run.loss.forward = lambda td: batches.append(td) or forward(td)
+    for _ in range(5):
+        run.step()
+    for batch in batches:
+        rows = [tuple(o.tolist()) in explored for o in batch["observation"]]
+        assert len(rows) == 8 and all(rows[6:])  # 8 * 0.25 explored rows after the uniform ones
+    summary = train_critic([path], str(tmp_path / "run"), steps=3, explored_fraction=0.25, **{**TINY, "batch_size": 8})
+    with open(os.path.join(summary["out"], "critic.json")) as f:
+        assert json.load(f)["training"]["explored_fraction"] == 0.25
+    with pytest.raises(UserInputError, match="cannot resume with different explored_fraction"):
+        train_critic([path], summary["out"], steps=4, resume=True, **{**TINY, "batch_size": 8})
+
+
+def test_explored_fraction_refusals(annotated, tmp_path):
+    with pytest.raises(UserInputError, match="no demo in .* has explored_steps"):
+        train_critic([annotated], str(tmp_path / "none"), steps=1, explored_fraction=0.5, **TINY)
+    for fraction in (1.0, -0.1, 0.001):  # all explored, negative, or no explored row in a batch
+        with pytest.raises(UserInputError, match="explored_fraction must lie in \\[0, 1\\)"):
+            train_critic([annotated], str(tmp_path / "bad"), steps=1, explored_fraction=fraction, **TINY)
+
+
 def test_an_elegant_success_critic_with_the_bce_value_loss_trains_and_records_it(annotated, tmp_path):
     summary = train_critic([annotated], str(tmp_path / "bce"), steps=4, reward="elegant", value_loss="bce", gamma=0.99, **TINY)
     assert all(np.isfinite(v) for v in summary["final"].values())
