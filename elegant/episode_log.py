@@ -1,4 +1,4 @@
-"""RUN/episodes.jsonl, the append-only record of a run's finished episodes.
+"""RUN/episodes.jsonl, the append-only record of a run's finished episodes, and which of them a run counts.
 
 Its own module because both the evaluation runner (which appends) and the reports (which pair the
 episodes of several runs) read it, and the runner imports the reports.
@@ -8,8 +8,10 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from collections.abc import Mapping, Sequence
 from typing import Any
 
+from annotations.format import task_key
 from base_suites.atomic import atomic_write
 from base_suites.errors import UserInputError
 
@@ -43,3 +45,10 @@ class EpisodeLog:
             f.flush()
             os.fsync(f.fileno())
         self.records.append(record)
+
+
+def run_records(records: Sequence[dict[str, Any]], config: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The records a run's metrics count: those of its tasks and its first `episodes` episodes (a run resumed
+    with fewer episodes keeps the later ones in the log, but not in its numbers)."""
+    tasks = {task_key(config["suite"], i) for i in config["tasks"]}
+    return [r for r in records if r["task"] in tasks and int(r["episode"]) < int(config["episodes"])]

@@ -30,7 +30,7 @@ from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
 from base_suites.seeds import derive_seed
-from elegant.episode_log import EpisodeLog
+from elegant.episode_log import EpisodeLog, run_records
 from elegant.jiti import JITI
 from elegant.metrics import summarize
 from elegant.report import write_run_report
@@ -210,7 +210,7 @@ def evaluate(
         for index in indices:
             if todo[index]:
                 _run_task(suite, index, todo[index], agent, ITCMonitor, config, log, out, bar)
-    records = [r for r in log.records if r["task"] in {task_key(suite, i) for i in indices} and int(r["episode"]) < int(episodes)]
+    records = run_records(log.records, config)
     summary = {"config": config, **summarize(records)}
     atomic_write(out / "summary.json", json.dumps(summary, indent=2))
     write_run_report(out, summary, records)

@@ -69,11 +69,10 @@ def paired_comparison(before: Sequence[Record], after: Sequence[Record], key: st
     binomial test of only_after against only_before (1.0 where they are all equal). Pairing removes the
     start-to-start variance that dominates the difference of two independent 25-episode rates."""
     def start(r: Record) -> tuple:
-        return r["task"], int(r["episode"])
+        return r["task"], int(r["episode"]), r.get("init_index"), r.get("seed")
 
     earlier = {start(r): r for r in before}
-    pairs = [(earlier[start(r)], r) for r in after
-             if start(r) in earlier and (earlier[start(r)].get("init_index"), earlier[start(r)].get("seed")) == (r.get("init_index"), r.get("seed"))]
+    pairs = [(earlier[start(r)], r) for r in after if start(r) in earlier]
     if not pairs:
         return {"pairs": 0}
     a = np.array([bool(p[key]) for p, _ in pairs])

@@ -22,7 +22,7 @@ import numpy as np
 from annotations.format import CRITERIA, SEGMENT_LENGTH
 from base_suites.atomic import atomic_write
 from base_suites.errors import UserInputError
-from elegant.episode_log import EpisodeLog
+from elegant.episode_log import EpisodeLog, run_records
 from elegant.jiti import choose_candidate, eligible_candidates
 from elegant.metrics import paired_comparison, robustness_metrics, summarize
 
@@ -232,7 +232,7 @@ def _load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
         config = json.loads(path.read_text())["config"]
     except (json.JSONDecodeError, KeyError, TypeError):
         raise UserInputError(f"{path}: not the JSON summary of an `elegant eval` run (no field 'config')") from None
-    records = EpisodeLog(run_dir / "episodes.jsonl").records
+    records = run_records(EpisodeLog(run_dir / "episodes.jsonl").records, config)
     if not records:
         raise UserInputError(f"{run_dir / 'episodes.jsonl'}: no finished episodes")
     return {"config": config, **summarize(records)}, records

@@ -35,7 +35,7 @@ def make_run(path, mode, successes, perturbation=None, with_q=True):
         records.append({"task": trace["task"], "episode": i, "init_index": i, "seed": 100 + i, "success": ok, "elegant": trace["elegant"], "violated": trace["violated"],
                         "interventions": sum(intervened), "overrides": 1, "steps": steps, "decision_time": 1e-4,
                         "env_step_time": 1e-2, "trace": name})
-    config = {"suite": "libero_goal", "tasks": [0, 1], "policy": "/p", "critic": "/c", "mode": mode, "episodes": 2, "seed": 0,
+    config = {"suite": "libero_goal", "tasks": [0, 1], "policy": "/p", "critic": "/c", "mode": mode, "episodes": len(successes), "seed": 0,
               "perturbation": perturbation, "max_steps": None, "obs": "lowdim",
               "jiti": {"window": 10, "threshold": 1.0, "threshold_mode": "absolute", "n_candidates": 16, "policy_adapter": "BCPolicy"}}
     summary = {"config": config, **summarize(records)}
@@ -102,6 +102,13 @@ def test_compare_runs_recomputes_metrics_from_the_episodes(tmp_path):
     (tmp_path / "old" / "episodes.jsonl").write_text("")
     with pytest.raises(UserInputError, match="episodes.jsonl: no finished episodes"):
         compare_runs([tmp_path / "old"])
+
+
+def test_compare_runs_counts_only_the_episodes_the_run_asks_for(tmp_path):
+    summary, _ = make_run(tmp_path / "run", "base", [True, True, False, False])
+    summary["config"]["episodes"] = 2  # resumed with fewer episodes: the log keeps episodes 2 and 3
+    (tmp_path / "run" / "summary.json").write_text(json.dumps(summary))
+    assert "| success rate [95% interval] | 100.0% [34.2%, 100.0%] |" in compare_runs([tmp_path / "run"])["markdown"]
 
 
 def test_compare_runs_without_out_writes_nothing_and_refuses_non_runs(tmp_path):
