@@ -88,11 +88,15 @@ class TransitionData:
     def fingerprint(self) -> str:
         """A digest of every transition: a resumed training run checks it still reads the same data.
         next/action is left out: it follows from the actions and the demo ends, and runs checkpointed before
-        it existed still resume."""
+        it existed still resume. The explored mask counts only where rows are explored: data without any
+        digests as it did before the mask existed."""
         digest = hashlib.sha256()
         for key in sorted((k for k in self.transitions.keys(True, True) if k != ("next", "action")), key=str):
             digest.update(str(key).encode())
             digest.update(self.transitions.get(key).numpy().tobytes())
+        if bool(self.explored.any()):
+            digest.update(b"explored")
+            digest.update(self.explored.numpy().tobytes())
         return digest.hexdigest()
 
 

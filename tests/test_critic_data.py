@@ -208,6 +208,17 @@ def test_explored_decisions_are_marked_on_their_rows(tmp_path):
         load_transitions([bad])
 
 
+def test_the_data_fingerprint_follows_the_explored_decisions(tmp_path):
+    """A resume must notice when the explored rows changed, though every transition stayed the same."""
+    def fingerprint(name, explored_at):
+        return load_transitions([write_annotated(tmp_path / name, n_demos=3, lengths=(30, 31), explored_at=explored_at)]).fingerprint()
+
+    plain = fingerprint("plain.hdf5", None)
+    assert fingerprint("empty.hdf5", {0: []}) == plain  # no explored row: digested as before the mask existed
+    first = fingerprint("a.hdf5", {0: [3]})
+    assert first != plain and first != fingerprint("b.hdf5", {0: [4]}) and first == fingerprint("c.hdf5", {0: [3]})
+
+
 def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):
     plain = write_annotated(tmp_path / "plain.hdf5", labelled=False)
     with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):
