@@ -3,7 +3,9 @@
 For each demo the task's env is reset to the demo's init state, its fixtures are put where the recording
 had them (`fixture_layout`: the stored states do not hold it), then jumped to each stored MuJoCo state
 in turn and the ITC monitor judges every transition (s_t, a_t, s_t+1). The state after the last action
-is the recorded `final_state`; a file without one (LIBERO's own) gets it by stepping the env once from
+is the recorded `final_state`, and whether the episode succeeded is its recorded last reward, LIBERO's
+verdict when it ran (the goal's contacts, found afresh after a jump to that state, can miss an object
+that touched down at speed); a file without one (LIBERO's own) gets it by stepping the env once from
 the last stored state, which is only approximate: the controller's internal state (the gripper's
 smoothed command, the OSC target) is not part of a MuJoCo state, and that last transition is where
 LIBERO ends a successful episode, so where placements are judged. No policy or expert runs, so the
@@ -52,17 +54,18 @@ def replay_verdict(env: LiberoEnv, monitor: ITCMonitor, demo: Demo) -> EpisodeVe
             raise UserInputError(f"data/{demo.name} attribute 'fixture_layout': {e}") from None
     env.set_sim_state(demo.states[0])
     monitor.reset()
-    success = False
+    success = goal_reached = False
     for t in range(demo.num_samples):
         if t + 1 < demo.num_samples:
             env.set_sim_state(demo.states[t + 1])
         elif demo.final_state is not None:
             env.set_sim_state(demo.final_state)
-            success = env.goal_reached()
+            # the recorded reward is LIBERO's own verdict when the episode ran (see ITCMonitor.step's goal_reached)
+            success = goal_reached = bool(demo.rewards[-1] > 0)
         else:
             env.set_sim_state(demo.states[-1])
             success = bool(env.step(demo.actions[-1])[4]["success"])
-        monitor.step(demo.actions[t])
+        monitor.step(demo.actions[t], goal_reached=goal_reached)
     return monitor.verdict(success)
 
 

@@ -7,6 +7,7 @@ step and caching the answers here keeps the monitor's cost to one contact pass p
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from functools import cached_property
 
 import numpy as np
@@ -67,12 +68,13 @@ class RestTracker:
 class StepContext:
     """Lazily cached simulator queries for the state after one step."""
 
-    def __init__(self, sim: SimView) -> None:
+    def __init__(self, sim: SimView, known: Mapping[tuple[str, ...], bool] | None = None) -> None:
+        """`known`: predicates whose truth at this step is given (see `ITCMonitor.step`'s `goal_reached`)."""
         self.sim = sim
         self._positions: dict[str, np.ndarray] = {}
         self._rotations: dict[str, np.ndarray] = {}
         self._speeds: dict[str, float] = {}
-        self._predicates: dict[tuple[str, ...], bool] = {}
+        self._predicates: dict[tuple[str, ...], bool] = dict(known or {})
         self._regions: dict[str, Region] = {}
 
     @cached_property

@@ -190,6 +190,52 @@ def test_annotation_refuses_foreign_states_and_resumes_after_the_fix(recorded, t
         assert np.array_equal(annotated.demo("demo_1").itc["collision"], online[1].steps["collision"])
 
 
+@pytest.mark.sim
+def test_a_replay_keeps_the_success_libero_reported_when_the_goal_contact_was_a_touchdown(tmp_path):
+    """The clean expert sets the bowl on the cabinet (libero_goal/4, init state 2, reset seed 2) and LIBERO
+    ends the episode on its touchdown contact; jumped to the recorded final state, MuJoCo finds the bowl a
+    hair above the cabinet and the goal false. The annotation must keep LIBERO's success and judge the
+    placement there, as the monitor did while the episode ran."""
+    from annotations.collect import record_episode
+    from base_suites.experts import ScriptedExpert
+
+    env = make_env("libero_goal", 4, seed=0)
+    obs, _ = env.reset(seed=2, options={"init_state": 2})
+    monitor = ITCMonitor(env)
+    monitor.reset()
+    expert = ScriptedExpert(env, quality="clean", seed=0)
+    expert.reset(env.metadata, episode=2)
+
+    def watched(observation):  # the monitor judges each step as the next decision sees its result
+        if watched.steps:
+            monitor.step()
+        watched.steps += 1
+        return expert(observation)
+
+    watched.steps = 0
+    record = record_episode(env, watched, obs)
+    monitor.step()
+    online = monitor.verdict(record["success"])
+    env.set_sim_state(record["final_state"])
+    assert record["success"] and not env.goal_reached(), "the touchdown this test is about no longer happens"
+    path = str(tmp_path / "demos.hdf5")
+    writer = DemoWriter(path, {"env_args": {"env_name": "libero_goal"}, "language_instruction": env.instruction})
+    attrs = {"suite": "libero_goal", "task_index": 4, "task_name": env.task.name, "language_instruction": env.instruction,
+             "init_state_index": 2, "seed": 0, "knobs": {}, "expert_version": "test", "success": True, "perturbation": [],
+             "reset_seed": 2, "fixture_layout": env.fixture_layout()}
+    writer.append(Demo("demo", record["actions"], record["states"], record["obs"], record["next_obs"], record["rewards"],
+                       record["dones"], attrs, final_state=record["final_state"]), env.metadata["state_layout"])
+    writer.finish()
+    env.close()
+    summary = annotate_file(path, str(tmp_path / "annotated.hdf5"), progress=False)
+    assert summary["success_rate"] == 1.0
+    with DemoFile(str(tmp_path / "annotated.hdf5"), require_labels=True) as annotated:
+        demo = next(iter(annotated))
+        assert demo.attrs["success"] is True and demo.attrs["violated"] == online.violated
+        for c in CRITERIA:
+            assert np.array_equal(demo.itc[c], online.steps[c]), c
+
+
 def test_bad_arguments_are_refused(tmp_path):
     with pytest.raises(UserInputError, match="gamma must be in"):
         annotate_file("x.hdf5", "y.hdf5", gamma=1.5)
