@@ -7,7 +7,9 @@ in every mode. The chain directory resumes (rerun the same command after an inte
 
     python benchmarks/jiti_effect.py --out runs/effect [--suites libero_object,libero_goal] [--demos 50]
         [--episodes 50] [--critic-steps 20000] [--policy-epochs 50] [--tasks 0,1] [--threshold 2 --threshold-mode std]
-        [--chunk 8 --critic-rollouts 50 --critic-backup dataset]
+        [--chunk 8 --critic-rollouts 50 --critic-backup dataset] [--rollout-explore-at 8,16,24]
+        [--critic-reward elegant --critic-value-loss bce --critic-hidden 64,64 --critic-weight-decay 0.1
+         --critic-mc-weight 10 --critic-explored-fraction 0.5]
 
 Prints the table per suite, then one JSON object on its last line.
 """
@@ -16,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from elegant.cli import parse_indices
 from elegant.pipeline import add_chain_arguments, chain_config, run_chain
 
 TARGETS = {"base_success": 0.70, "esr_gain": 0.15, "max_success_drop": 0.02, "max_intervention_ratio": 0.40}
@@ -58,13 +61,23 @@ def main() -> None:
                         help="exploring rollouts per task of the trained policy added to the critic's data (from the first half of the init "
                              "states; every mode is then evaluated from the second half)")
     parser.add_argument("--rollout-explore", type=float, default=0.3, help="fraction of the rollouts' decisions given a random candidate")
+    parser.add_argument("--rollout-explore-at", help="instead of --rollout-explore: decision steps, e.g. 8,16,24; each rollout "
+                                                     "takes a random candidate at one of them (elegant rollouts --explore-at)")
     parser.add_argument("--critic-backup", default="policy", help="policy (Cal-QL's) or dataset (in-sample)")
+    parser.add_argument("--critic-hidden", default="256,256", help="the critic's hidden layer widths")
+    parser.add_argument("--critic-weight-decay", type=float, default=0.0)
+    parser.add_argument("--critic-mc-weight", type=float, default=0.0, help="weight of the Monte-Carlo regression beside TD")
+    parser.add_argument("--critic-value-loss", default="mse", help="mse, or bce (with --critic-reward elegant)")
+    parser.add_argument("--critic-explored-fraction", type=float, default=0.0, help="share of each batch from the rollouts' explored decisions")
     args = parser.parse_args()
     config = chain_config(
         args, modes=("base", "always", "jiti"), critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
         critic_cql_weight=args.critic_cql_weight, critic_reward=args.critic_reward, trust_radius=args.trust_radius,
         threshold=args.threshold, threshold_mode=args.threshold_mode, window=args.window, critic_rollouts=args.critic_rollouts,
         rollout_explore=args.rollout_explore, critic_backup=args.critic_backup,
+        rollout_explore_at=tuple(parse_indices(args.rollout_explore_at, "--rollout-explore-at")) if args.rollout_explore_at else None,
+        critic_hidden=tuple(parse_indices(args.critic_hidden, "--critic-hidden")), critic_weight_decay=args.critic_weight_decay,
+        critic_mc_weight=args.critic_mc_weight, critic_value_loss=args.critic_value_loss, critic_explored_fraction=args.critic_explored_fraction,
     )
     result = run_chain(args.out, config)
     table = verdicts(result)

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.errors import UserInputError
 
 MODES = ("base", "always", "jiti")
 
@@ -44,8 +44,15 @@ class ChainConfig:
     radius at a `rollout_explore` fraction of its decisions (`elegant rollouts`), added to the critic's
     data, so it sees the policy's own mistakes and what its alternatives lead to. The rollouts then start
     from the first half of each task's init states and every evaluation from the second half, so no
-    evaluated start was seen in training. `critic_backup`: the TD target's next action, "policy" (Cal-QL's)
-    or "dataset" (in-sample; with the rollouts it values the alternatives they tried).
+    evaluated start was seen in training. `rollout_explore_at`: instead of a rate, the decision steps the
+    rollouts branch at, one per episode (`elegant rollouts --explore-at`: episodes from one start then differ
+    in one decision, the contrasts a critic must rank). `critic_backup`: the TD target's next action,
+    "policy" (Cal-QL's) or "dataset" (in-sample; with the rollouts it values the alternatives they tried).
+    `critic_hidden`, `critic_weight_decay`, `critic_mc_weight`, `critic_value_loss` and
+    `critic_explored_fraction` are `train_critic`'s `hidden`, `weight_decay`, `mc_weight`, `value_loss`
+    and `explored_fraction`: the small regularised outcome classifier of issue 7 (README, `elegant eval`)
+    is `critic_reward="elegant"`, `critic_value_loss="bce"`, `critic_hidden=(64, 64)`,
+    `critic_weight_decay=0.1`, `critic_mc_weight=10`, `critic_explored_fraction=0.5`.
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -72,6 +79,12 @@ class ChainConfig:
     critic_rollouts: int = 0
     rollout_explore: float = 0.3
     critic_backup: str = "policy"
+    rollout_explore_at: tuple[int, ...] | None = None
+    critic_hidden: tuple[int, ...] = (256, 256)
+    critic_weight_decay: float = 0.0
+    critic_mc_weight: float = 0.0
+    critic_value_loss: str = "mse"
+    critic_explored_fraction: float = 0.0
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -90,12 +103,23 @@ class ChainConfig:
             raise UserInputError(f"chain rollout_explore must lie in [0, 1], got {self.rollout_explore}")
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
-        from critics import BACKUPS, REWARDS  # torch loads only when a chain runs
+        if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
+            raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
+        if self.critic_explored_fraction > 0 and not self.critic_rollouts:
+            raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
+        from critics import TrainConfig  # torch loads only when a chain runs
 
-        if self.critic_reward not in REWARDS:
-            raise unknown_choice("chain critic_reward", self.critic_reward, REWARDS)
-        if self.critic_backup not in BACKUPS:
-            raise unknown_choice("chain critic_backup", self.critic_backup, BACKUPS)
+        try:  # the critic's settings, checked by the critic's own rules before hours of demos, not after
+            TrainConfig(paths=[], **self.critic_settings()).validate()
+        except UserInputError as e:
+            raise UserInputError(f"chain critic settings: {e}") from None
+
+    def critic_settings(self) -> dict[str, Any]:
+        """`train_critic`'s keyword arguments besides the data, the directory and the run controls."""
+        return {"steps": self.critic_steps, "seed": self.seed, "gamma": self.critic_gamma, "cql_weight": self.critic_cql_weight,
+                "reward": self.critic_reward, "chunk": self.chunk, "backup": self.critic_backup, "hidden": list(self.critic_hidden),
+                "weight_decay": self.critic_weight_decay, "mc_weight": self.critic_mc_weight, "value_loss": self.critic_value_loss,
+                "explored_fraction": self.critic_explored_fraction}
 
     def jiti_settings(self, mode: str) -> dict[str, Any] | None:
         if mode == "base":
@@ -140,7 +164,9 @@ def _check_settings(out: str, cfg: ChainConfig) -> None:
     settings = json.loads(json.dumps(asdict(cfg)))  # tuples as lists, as stored
     # chains written before chunking and before the mixture size was a setting (policies then had 5 components)
     added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False, "policy_obs_noise": 0.0,
-             "critic_rollouts": 0, "rollout_explore": 0.3, "critic_backup": "policy"}
+             "critic_rollouts": 0, "rollout_explore": 0.3, "critic_backup": "policy", "rollout_explore_at": None,
+             "critic_hidden": [256, 256], "critic_weight_decay": 0.0, "critic_mc_weight": 0.0, "critic_value_loss": "mse",
+             "critic_explored_fraction": 0.0}
     changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
     if changed:
         raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
@@ -216,8 +242,11 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     rollout_suites = cfg.suites if needs_critic and cfg.critic_rollouts else ()
     for suite in rollout_suites:
         if not os.path.exists(rollouts[suite]):
-            say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, exploring at {cfg.rollout_explore:.0%} of decisions")
-            collect_rollouts(suite, tasks, policy_dir, cfg.critic_rollouts, rollouts[suite], explore=cfg.rollout_explore,
+            explore = {"explore_at": list(cfg.rollout_explore_at)} if cfg.rollout_explore_at is not None else {"explore": cfg.rollout_explore}
+            how = f"branching at one of steps {list(cfg.rollout_explore_at)}" if cfg.rollout_explore_at is not None else \
+                f"exploring at {cfg.rollout_explore:.0%} of decisions"
+            say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, {how}")
+            collect_rollouts(suite, tasks, policy_dir, cfg.critic_rollouts, rollouts[suite], **explore,
                              trust_radius=cfg.trust_radius, init_states=rollout_starts, seed=cfg.seed, max_steps=cfg.max_steps,
                              resume=True, progress=progress)
         if not os.path.exists(annotated_rollouts[suite]):
@@ -226,8 +255,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
         critic_data.append(annotated_rollouts[suite])
     if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
         say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
-        train_critic(critic_data, critic_dir, steps=cfg.critic_steps, seed=cfg.seed, gamma=cfg.critic_gamma, cql_weight=cfg.critic_cql_weight,
-                     reward=cfg.critic_reward, chunk=cfg.chunk, backup=cfg.critic_backup, resume=True, progress=progress)
+        train_critic(critic_data, critic_dir, **cfg.critic_settings(), resume=True, progress=progress)
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:

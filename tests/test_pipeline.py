@@ -69,26 +69,37 @@ def test_a_base_only_chain_trains_no_critic(chain, tmp_path):
 
 
 def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_starts(chain, tmp_path):
-    """With `critic_rollouts` the trained policy's exploring episodes are recorded from the first half of
-    the init states, annotated and added to the critic's data (with the chosen backup); every mode is then
-    evaluated from the second half only."""
+    """With `critic_rollouts` the trained policy's episodes, branching at one of `rollout_explore_at`, are
+    recorded from the first half of the init states, annotated and added to the critic's data, trained
+    with the chain's critic settings; every mode is then evaluated from the second half only."""
     import h5py
 
     copy_data_and_policy(chain[0], tmp_path)
-    cfg = replace(TINY, critic_rollouts=2, rollout_explore=0.5, critic_backup="dataset", trust_radius=None)
+    cfg = replace(TINY, critic_rollouts=2, rollout_explore_at=(0, 4), critic_backup="dataset", trust_radius=None, critic_reward="elegant",
+                  critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5)
     result = run_chain(str(tmp_path), cfg, progress=False)
     rollouts = str(tmp_path / "rollouts_libero_object.hdf5")
     training = json.load(open(tmp_path / "critic" / "critic.json"))["training"]
-    assert training["backup"] == "dataset"
+    assert {k: training[k] for k in ("backup", "reward", "value_loss", "hidden", "weight_decay", "mc_weight", "explored_fraction")} == {
+        "backup": "dataset", "reward": "elegant", "value_loss": "bce", "hidden": [16, 16], "weight_decay": 0.1, "mc_weight": 10.0,
+        "explored_fraction": 0.5}
     assert [os.path.basename(p) for p in training["paths"]] == ["annotated_libero_object.hdf5", "annotated_rollouts_libero_object.hdf5"]
     with h5py.File(rollouts) as f:
         starts = sorted(int(f["data"][d].attrs["init_state_index"]) for d in f["data"])
-        explored = [len(f["data"][d].attrs["explored_steps"]) for d in f["data"]]
-    assert len(starts) == 2 and max(starts) < 25 and sum(explored) > 0
+        explored = [json.loads(f["data"][d].attrs["explored_steps"]) for d in f["data"]]
+    assert len(starts) == 2 and max(starts) < 25
+    assert explored == [[0], [0]]  # the two starts branch at the first point before any start branches at the second
     for mode in ("base", "jiti"):
         config = json.load(open(os.path.join(result["runs"][mode]["libero_object"], "config.json")))
         assert config["init_states"] == list(range(25, 50))
-    with pytest.raises(UserInputError, match="critic_backup"):
+    with pytest.raises(UserInputError, match="chain critic settings: unknown train-critic backup .mine."):
         run_chain(str(tmp_path / "other"), replace(cfg, critic_backup="mine"), progress=False)
+    with pytest.raises(UserInputError, match="chain critic settings: .*value_loss 'bce' needs"):
+        run_chain(str(tmp_path / "other"), replace(cfg, critic_reward="segment"), progress=False)
+    with pytest.raises(UserInputError, match="critic_explored_fraction needs explored decisions"):
+        run_chain(str(tmp_path / "other"), replace(cfg, critic_rollouts=0), progress=False)
+    with pytest.raises(UserInputError, match="rollout_explore_at must list decision steps >= 0"):
+        run_chain(str(tmp_path / "other"), replace(cfg, rollout_explore_at=(-8,)), progress=False)
+    assert not os.path.exists(tmp_path / "other")  # refused before anything was written
     with pytest.raises(UserInputError, match="other settings \\(critic_rollouts\\)"):
         run_chain(str(tmp_path), replace(cfg, critic_rollouts=3), progress=False)
