@@ -266,6 +266,8 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trust-radius", type=float, help="only candidates within this L2 distance of the base action may be chosen")
     p.add_argument("--random-rate", type=float, help="mode random: the fraction of decisions given a random eligible candidate")
     p.add_argument("--min-gain", type=float, help="override the base action only when the best candidate's Q beats its Q by more than this")
+    p.add_argument("--trigger", choices=("deviation", "drop"),
+                   help="critical moment: |q - mean| > tau (deviation, default) or q below the mean by more than tau (drop)")
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
 
 

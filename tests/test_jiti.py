@@ -105,6 +105,19 @@ def test_threshold_in_units_of_the_window_std():
     assert not jiti3.log[10].intervened and jiti3.log[10].tau == 3.0
 
 
+def test_the_drop_trigger_ignores_a_climbing_q_and_fires_on_a_fall():
+    """A value that climbs as the task progresses leaves every score above the lagging mean: the symmetric
+    deviation fires all along the climb, the one-sided drop trigger only where q falls below the mean."""
+    climb = [float(t) for t in range(12)] + [3.0]
+    deviation = JITI(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0)
+    rollout(deviation, 13)
+    assert [d.step for d in deviation.log if d.intervened] == [4, 5, 6, 7, 8, 9, 10, 11, 12]
+    drop = JITI(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0, trigger="drop")
+    rollout(drop, 13)
+    assert [d.step for d in drop.log if d.intervened] == [12]  # 3 after a window of 8-11: the fall
+    assert drop.log[12].dq == pytest.approx(abs(3.0 - drop.log[12].mean)) and drop.config()["trigger"] == "drop"
+
+
 def test_mode_always_reselects_every_step_and_base_wins_ties():
     policy, critic = SamplingPolicy(), ScriptedCritic([1.0] * 12)
     jiti = JITI(policy, critic, window=10, mode="always", n_candidates=4)
@@ -185,7 +198,7 @@ def test_trace_has_one_column_per_field_and_one_row_per_step():
 @pytest.mark.parametrize(
     "kwargs, message",
     [({"mode": "sometimes"}, "JITI mode"), ({"threshold_mode": "rel"}, "threshold_mode"), ({"window": 0}, "window"),
-     ({"n_candidates": 1}, "n_candidates"), ({"threshold": -1.0}, "threshold")],
+     ({"n_candidates": 1}, "n_candidates"), ({"threshold": -1.0}, "threshold"), ({"trigger": "rise"}, "JITI trigger")],
 )
 def test_bad_settings_are_user_errors(kwargs, message):
     with pytest.raises(UserInputError, match=message):
