@@ -57,6 +57,7 @@ def main() -> None:
     parser.add_argument("--threshold", type=float, default=2.0)
     parser.add_argument("--threshold-mode", choices=("absolute", "std"), default="std")
     parser.add_argument("--window", type=int, help="JITI's window in decisions (default: JITI's)")
+    parser.add_argument("--trigger", choices=("deviation", "drop"), help="JITI's critical moment (default: JITI's, deviation)")
     parser.add_argument("--critic-rollouts", type=int, default=0,
                         help="exploring rollouts per task of the trained policy added to the critic's data (from the first half of the init "
                              "states; every mode is then evaluated from the second half)")
@@ -73,7 +74,7 @@ def main() -> None:
     config = chain_config(
         args, modes=("base", "always", "jiti"), critic_steps=args.critic_steps, critic_gamma=args.critic_gamma,
         critic_cql_weight=args.critic_cql_weight, critic_reward=args.critic_reward, trust_radius=args.trust_radius,
-        threshold=args.threshold, threshold_mode=args.threshold_mode, window=args.window, critic_rollouts=args.critic_rollouts,
+        threshold=args.threshold, threshold_mode=args.threshold_mode, window=args.window, trigger=args.trigger, critic_rollouts=args.critic_rollouts,
         rollout_explore=args.rollout_explore, critic_backup=args.critic_backup,
         rollout_explore_at=tuple(parse_indices(args.rollout_explore_at, "--rollout-explore-at")) if args.rollout_explore_at else None,
         critic_hidden=tuple(parse_indices(args.critic_hidden, "--critic-hidden")), critic_weight_decay=args.critic_weight_decay,

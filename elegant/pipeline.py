@@ -37,7 +37,7 @@ class ChainConfig:
     on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
     suites' horizons. `chunk`: actions per decision of the BC policy (executed open-loop) and of the
     critic that judges them; JITI then chooses among whole chunks (see `elegant.jiti`). `window`: JITI's
-    window in decisions (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
+    window in decisions (None: JITI's default); `trigger` JITI's critical-moment test (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
     `policy_successful_only`: the policy clones only the demos that succeeded (the critic still sees all).
     `policy_obs_noise`: std of the Gaussian noise on the policy's normalised input states in training.
     `critic_rollouts`: episodes per task of the trained policy, with a random candidate within the trust
@@ -85,6 +85,7 @@ class ChainConfig:
     critic_mc_weight: float = 0.0
     critic_value_loss: str = "mse"
     critic_explored_fraction: float = 0.0
+    trigger: str | None = None
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -105,6 +106,10 @@ class ChainConfig:
             raise UserInputError("chain suites: give at least one suite")
         if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
             raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
+        from elegant.jiti import TRIGGERS
+
+        if self.trigger is not None and self.trigger not in TRIGGERS:
+            raise UserInputError(f"chain trigger {self.trigger!r}: expected one of {', '.join(TRIGGERS)}")
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         from critics import TrainConfig  # torch loads only when a chain runs
@@ -124,7 +129,8 @@ class ChainConfig:
     def jiti_settings(self, mode: str) -> dict[str, Any] | None:
         if mode == "base":
             return None
-        settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window}
+        settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window,
+                    "trigger": self.trigger}
         return {k: v for k, v in settings.items() if v is not None}
 
 
@@ -166,7 +172,7 @@ def _check_settings(out: str, cfg: ChainConfig) -> None:
     added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False, "policy_obs_noise": 0.0,
              "critic_rollouts": 0, "rollout_explore": 0.3, "critic_backup": "policy", "rollout_explore_at": None,
              "critic_hidden": [256, 256], "critic_weight_decay": 0.0, "critic_mc_weight": 0.0, "critic_value_loss": "mse",
-             "critic_explored_fraction": 0.0}
+             "critic_explored_fraction": 0.0, "trigger": None}
     changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
     if changed:
         raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")

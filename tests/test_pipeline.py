@@ -76,7 +76,7 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
 
     copy_data_and_policy(chain[0], tmp_path)
     cfg = replace(TINY, critic_rollouts=2, rollout_explore_at=(0, 4), critic_backup="dataset", trust_radius=None, critic_reward="elegant",
-                  critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5)
+                  critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5, trigger="drop")
     result = run_chain(str(tmp_path), cfg, progress=False)
     rollouts = str(tmp_path / "rollouts_libero_object.hdf5")
     training = json.load(open(tmp_path / "critic" / "critic.json"))["training"]
@@ -92,6 +92,9 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     for mode in ("base", "jiti"):
         config = json.load(open(os.path.join(result["runs"][mode]["libero_object"], "config.json")))
         assert config["init_states"] == list(range(25, 50))
+    assert json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))["jiti"]["trigger"] == "drop"
+    with pytest.raises(UserInputError, match="chain trigger 'rise'"):
+        run_chain(str(tmp_path / "other"), replace(cfg, trigger="rise"), progress=False)
     with pytest.raises(UserInputError, match="chain critic settings: unknown train-critic backup .mine."):
         run_chain(str(tmp_path / "other"), replace(cfg, critic_backup="mine"), progress=False)
     with pytest.raises(UserInputError, match="chain critic settings: .*value_loss 'bce' needs"):
