@@ -19,6 +19,7 @@ import argparse
 import json
 
 from elegant.cli import parse_indices
+from elegant.jiti import TRIGGERS
 from elegant.pipeline import add_chain_arguments, chain_config, run_chain
 
 TARGETS = {"base_success": 0.70, "esr_gain": 0.15, "max_success_drop": 0.02, "max_intervention_ratio": 0.40}
@@ -57,7 +58,7 @@ def main() -> None:
     parser.add_argument("--threshold", type=float, default=2.0)
     parser.add_argument("--threshold-mode", choices=("absolute", "std"), default="std")
     parser.add_argument("--window", type=int, help="JITI's window in decisions (default: JITI's)")
-    parser.add_argument("--trigger", choices=("deviation", "drop"), help="JITI's critical moment (default: JITI's, deviation)")
+    parser.add_argument("--trigger", choices=TRIGGERS, help="JITI's critical moment (default: JITI's, deviation)")
     parser.add_argument("--critic-rollouts", type=int, default=0,
                         help="exploring rollouts per task of the trained policy added to the critic's data (from the first half of the init "
                              "states; every mode is then evaluated from the second half)")

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
-from base_suites.errors import UserInputError
+from base_suites.errors import UserInputError, unknown_choice
 
 MODES = ("base", "always", "jiti")
 
@@ -109,7 +109,7 @@ class ChainConfig:
         from elegant.jiti import TRIGGERS
 
         if self.trigger is not None and self.trigger not in TRIGGERS:
-            raise UserInputError(f"chain trigger {self.trigger!r}: expected one of {', '.join(TRIGGERS)}")
+            raise unknown_choice("chain trigger", self.trigger, TRIGGERS)
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         from critics import TrainConfig  # torch loads only when a chain runs
@@ -164,15 +164,19 @@ def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
 # from 30 mixed demos swung between 0% and 83% success with the dataset's small details.
 QUICKSTART = ChainConfig()
 
+# settings a chain directory may predate
+_ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
+                "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
+                "critic_explored_fraction", "trigger")
+
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:
     path = os.path.join(out, "chain.json")
     settings = json.loads(json.dumps(asdict(cfg)))  # tuples as lists, as stored
-    # chains written before chunking and before the mixture size was a setting (policies then had 5 components)
-    added = {"chunk": 1, "window": None, "policy_modes": 5, "policy_successful_only": False, "policy_obs_noise": 0.0,
-             "critic_rollouts": 0, "rollout_explore": 0.3, "critic_backup": "policy", "rollout_explore_at": None,
-             "critic_hidden": [256, 256], "critic_weight_decay": 0.0, "critic_mc_weight": 0.0, "critic_value_loss": "mse",
-             "critic_explored_fraction": 0.0, "trigger": None}
+    # chains written before these were settings ran as their defaults do; before the mixture size was a
+    # setting, policies had 5 components
+    defaults = json.loads(json.dumps(asdict(QUICKSTART)))
+    added = {**{name: defaults[name] for name in _ADDED_LATER}, "policy_modes": 5}
     changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
     if changed:
         raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
@@ -248,9 +252,10 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     rollout_suites = cfg.suites if needs_critic and cfg.critic_rollouts else ()
     for suite in rollout_suites:
         if not os.path.exists(rollouts[suite]):
-            explore = {"explore_at": list(cfg.rollout_explore_at)} if cfg.rollout_explore_at is not None else {"explore": cfg.rollout_explore}
-            how = f"branching at one of steps {list(cfg.rollout_explore_at)}" if cfg.rollout_explore_at is not None else \
-                f"exploring at {cfg.rollout_explore:.0%} of decisions"
+            if cfg.rollout_explore_at is not None:
+                explore, how = {"explore_at": list(cfg.rollout_explore_at)}, f"branching at one of steps {list(cfg.rollout_explore_at)}"
+            else:
+                explore, how = {"explore": cfg.rollout_explore}, f"exploring at {cfg.rollout_explore:.0%} of decisions"
             say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, {how}")
             collect_rollouts(suite, tasks, policy_dir, cfg.critic_rollouts, rollouts[suite], **explore,
                              trust_radius=cfg.trust_radius, init_states=rollout_starts, seed=cfg.seed, max_steps=cfg.max_steps,
