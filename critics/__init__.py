@@ -5,7 +5,7 @@ artifact (`load` -> `Critic`, whose `bind(metadata)` and `q(state, actions)` JIT
 quality (`evaluate_critic`; `continuation_pairs` + `pair_preference`: clean vs knob continuations).
 """
 from critics.artifact import Critic, load, save_critic
-from critics.data import REWARDS, TransitionData, action_chunks, chunk_transitions, load_transitions, make_replay_buffer
+from critics.data import REWARDS, TransitionData, action_chunks, chunk_transitions, explored_mask, load_transitions, make_replay_buffer
 from critics.loss import BACKUPS, VALUE_LOSSES, CalQLLoss, CalQLTerms, cql_logsumexp
 from critics.networks import TanhGaussianActor, TwinQNetwork
 from critics.normalization import Normalization
@@ -14,6 +14,6 @@ from critics.train import TrainConfig, train_critic
 
 __all__ = [
     "BACKUPS", "CalQLLoss", "CalQLTerms", "Continuation", "Critic", "Normalization", "Pair", "PairList", "REWARDS", "TanhGaussianActor", "TrainConfig",
-    "TransitionData", "TwinQNetwork", "VALUE_LOSSES", "action_chunks", "auroc", "chunk_transitions", "continuation_pairs", "cql_logsumexp", "evaluate_critic", "load", "load_transitions",
+    "TransitionData", "TwinQNetwork", "VALUE_LOSSES", "action_chunks", "auroc", "chunk_transitions", "continuation_pairs", "cql_logsumexp", "evaluate_critic", "explored_mask", "load", "load_transitions",
     "make_replay_buffer", "pair_preference", "save_critic", "train_critic",
 ]

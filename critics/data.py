@@ -115,7 +115,7 @@ class _RawDemo:
     explored: np.ndarray  # per step: was its action (chunk) an explored decision's
 
 
-def _explored_mask(attrs: dict, steps: int, where: str) -> np.ndarray:
+def explored_mask(attrs: dict, steps: int, where: str) -> np.ndarray:
     """The steps a rollout took a random candidate at (attr `explored_steps`, written by `elegant rollouts`);
     none for demos without it."""
     mask = np.zeros(steps, dtype=bool)
@@ -178,7 +178,7 @@ def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
             obs=demo.obs, next_obs=demo.next_obs, actions=np.asarray(demo.actions, dtype=np.float32),
             reward=np.asarray(demo.elegance_reward, dtype=np.float32), mc_return=np.asarray(demo.mc_return, dtype=np.float32),
             window_kept=np.logical_and.reduce(list(step_window_labels(demo, length, where).values())), success=bool(demo.rewards[-1] > 0),
-            explored=_explored_mask(demo.attrs, t, where),
+            explored=explored_mask(demo.attrs, t, where),
         ))
     return demos
 

@@ -246,6 +246,27 @@ def _train_critic(args: argparse.Namespace) -> dict:
                         mc_weight=args.mc_weight, value_loss=args.value_loss, explored_fraction=args.explored_fraction)
 
 
+def _rank_check_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("rollouts", help="annotated branch rollouts (elegant rollouts --explore-at, then elegant annotate), "
+                   "best from starts the critic did not train on")
+    p.add_argument("--policy", required=True, help="the policy directory that recorded the rollouts")
+    p.add_argument("--critic", required=True, help="critic directory (from train-critic)")
+    p.add_argument("--out", help="also write the result here as JSON")
+
+
+@command("rank-check", "how well a critic ranks a policy's explored alternatives against its own plan, by their annotated outcome")(_rank_check_args)
+def _rank_check(args: argparse.Namespace) -> dict:
+    from base_suites.atomic import atomic_write_json
+    from elegant.branch_ranking import branch_ranking
+    from elegant.evaluation import open_critic, open_policy
+    from elegant.policies import as_policy
+
+    result = branch_ranking(args.rollouts, as_policy(open_policy(args.policy), seed=0), open_critic(args.critic), progress=True)
+    if args.out:
+        atomic_write_json(args.out, result)
+    return result
+
+
 def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")

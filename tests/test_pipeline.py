@@ -7,7 +7,10 @@ from dataclasses import replace
 import pytest
 
 from base_suites import UserInputError
+from elegant.branch_ranking import branch_ranking
+from elegant.evaluation import open_critic, open_policy
 from elegant.pipeline import ChainConfig, run_chain
+from elegant.policies import as_policy
 
 pytestmark = pytest.mark.sim
 
@@ -75,7 +78,7 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     import h5py
 
     copy_data_and_policy(chain[0], tmp_path)
-    cfg = replace(TINY, critic_rollouts=2, rollout_explore_at=(0, 4), critic_backup="dataset", trust_radius=None, critic_reward="elegant",
+    cfg = replace(TINY, critic_rollouts=2, rollout_explore_at=(4, 8), critic_backup="dataset", trust_radius=None, critic_reward="elegant",
                   critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5, trigger="drop")
     result = run_chain(str(tmp_path), cfg, progress=False)
     rollouts = str(tmp_path / "rollouts_libero_object.hdf5")
@@ -88,7 +91,11 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
         starts = sorted(int(f["data"][d].attrs["init_state_index"]) for d in f["data"])
         explored = [json.loads(f["data"][d].attrs["explored_steps"]) for d in f["data"]]
     assert len(starts) == 2 and max(starts) < 25
-    assert explored == [[0], [0]]  # the two starts branch at the first point before any start branches at the second
+    assert explored == [[4], [4]]  # the two starts branch at the first point before any start branches at the second
+    # rank-check replays the real policy (its history window) through the recorded steps before the branch
+    ranked = branch_ranking(str(tmp_path / "annotated_rollouts_libero_object.hdf5"), as_policy(open_policy(str(tmp_path / "policy")), seed=0),
+                            open_critic(str(tmp_path / "critic")))
+    assert (ranked["all"]["episodes"], ranked["all"]["skipped"]) == (2, 0)
     for mode in ("base", "jiti"):
         config = json.load(open(os.path.join(result["runs"][mode]["libero_object"], "config.json")))
         assert config["init_states"] == list(range(25, 50))
