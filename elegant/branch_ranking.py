@@ -21,13 +21,12 @@ simulator, where an `elegant eval` comparison costs minutes and is noisier.
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
-from annotations import DemoFile
+from annotations import Demo, DemoFile
 from base_suites.errors import UserInputError
 from critics import auroc, explored_mask
 from elegant.jiti import check_critic_chunk, decide
@@ -37,11 +36,11 @@ from elegant.policies.protocol import chunk_of
 _SAME_ACTION_ATOL = 1e-5
 
 
-def _metadata(f: DemoFile, attrs: Mapping[str, Any]) -> dict[str, Any]:
+def _metadata(f: DemoFile, demo: Demo) -> dict[str, Any]:
     """What a policy's `reset` and a critic's `bind` read from env.metadata, from the file instead."""
-    key = f"{attrs['suite']}/{attrs['task_index']}"
+    attrs = demo.attrs
     return {"suite": attrs["suite"], "task_index": int(attrs["task_index"]), "instruction": attrs.get("language_instruction", ""),
-            "state_layout": f.state_layouts[key]}
+            "state_layout": f.state_layouts[demo.task_key]}
 
 
 def _summary(rows: list[tuple[bool, float, float]], skipped: int) -> dict[str, Any]:
@@ -66,6 +65,8 @@ def branch_ranking(path: str, policy: Any, critic: Any, *, progress: bool = Fals
     check_critic_chunk(critic, chunk)
     rows: dict[str, list[tuple[bool, float, float]]] = defaultdict(list)
     skipped: dict[str, int] = defaultdict(int)
+    metadata: dict[str, dict[str, Any]] = {}  # per task; the critic is bound anew only when the task changes
+    bound = None
     with DemoFile(path, require_labels=True) as f:
         for name in tqdm(f.names, desc="rank", unit="ep", disable=not progress):
             demo = f.demo(name)
@@ -76,9 +77,12 @@ def branch_ranking(path: str, policy: Any, critic: Any, *, progress: bool = Fals
                 skipped[key] += 1
                 continue
             explored_at = int(steps[0])
-            metadata = _metadata(f, demo.attrs)
-            policy.reset(metadata, seed=0)
-            critic.bind(metadata)
+            if key not in metadata:
+                metadata[key] = _metadata(f, demo)
+            policy.reset(metadata[key], seed=0)
+            if key != bound:
+                critic.bind(metadata[key])
+                bound = key
             for t in range(explored_at):
                 action = np.asarray(policy({"state": demo.obs[t]}), dtype=np.float64)
                 if not np.allclose(np.clip(action, -1.0, 1.0), demo.actions[t], atol=_SAME_ACTION_ATOL):

@@ -268,11 +268,13 @@ def _rank_check(args: argparse.Namespace) -> dict:
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:
+    from elegant.jiti import MODES, THRESHOLD_MODES, TRIGGERS  # light: no torch
+
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
     p.add_argument("--critic", help="critic directory (from train-critic); required for jiti and always")
-    p.add_argument("--mode", choices=("jiti", "always", "base", "random"), default="jiti")
+    p.add_argument("--mode", choices=MODES, default="jiti")
     p.add_argument("--episodes", type=int, default=10, help="episodes per task")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="run directory")
@@ -281,13 +283,13 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-steps", type=int)
     p.add_argument("--window", type=int)
     p.add_argument("--threshold", type=float)
-    p.add_argument("--threshold-mode", choices=("absolute", "std"))
+    p.add_argument("--threshold-mode", choices=THRESHOLD_MODES)
     p.add_argument("--candidates", type=int, dest="n_candidates")
     p.add_argument("--noise-scale", type=float)
     p.add_argument("--trust-radius", type=float, help="only candidates within this L2 distance of the base action may be chosen")
     p.add_argument("--random-rate", type=float, help="mode random: the fraction of decisions given a random eligible candidate")
     p.add_argument("--min-gain", type=float, help="override the base action only when the best candidate's Q beats its Q by more than this")
-    p.add_argument("--trigger", choices=("deviation", "drop"),
+    p.add_argument("--trigger", choices=TRIGGERS,
                    help="critical moment: |q - mean| > tau (deviation, default) or q below the mean by more than tau (drop)")
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
 
