@@ -72,11 +72,13 @@ def collect_episodes(
     resume: bool = False,
     progress: bool = True,
     desc: str = "episodes",
+    perturbation: str | None = None,
 ) -> str:
     """Roll `source` out `episodes` times per task (None: every task of the suite) and write them to `out` in the demo
     layout: appended to `out.partial` as each finishes, renamed to `out` when all are there; `resume`
     continues an interrupted file, only with the same `settings` (what determines the episodes: stored
-    in the file's `collection` attribute). `horizon(spec)` is each task's episode limit. Returns the path."""
+    in the file's `collection` attribute). `horizon(spec)` is each task's episode limit; `perturbation` (e.g.
+    "init@nudge") is applied to every env. Returns the path."""
     from tqdm import tqdm
 
     if episodes <= 0:
@@ -87,7 +89,7 @@ def collect_episodes(
     bar = tqdm(total=len(specs) * episodes, desc=f"{desc} {suite}", disable=not progress, unit="ep")
     try:
         for task_pos, spec in enumerate(specs):
-            env = make_env(suite, spec.index, seed=seed, max_steps=horizon(spec))
+            env = make_env(suite, spec.index, seed=seed, max_steps=horizon(spec), perturbation=perturbation)
             if writer is None:
                 writer = DemoWriter(out, {**dataset_attrs(env, suite, [s.index for s in specs]), "collection": collection}, resume=resume)
                 changed = changed_fields(writer.attrs.get("collection"), collection, ignore=("episodes",))

@@ -1,7 +1,7 @@
 """LIBERO-PRO perturbations as seeded, composable operators.
 
 Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved
-0.2-0.3 m), `language` (paraphrased or target-swapped instruction) and `env` (floor, wall and table
+0.2-0.3 m; or, `init@nudge`, up to 2 cm: fresh starts within the shipped ones' spread), `language` (paraphrased or target-swapped instruction) and `env` (floor, wall and table
 swap). Each operator acts at the stage where the change belongs: before the env is built (which BDDL
 file, which instruction, which scene textures), right after it is built (colours), or after every reset
 (positions). The package's shipped LIBERO-PRO variants are used where they exist (`mode="shipped"`); by
@@ -123,11 +123,17 @@ class ObjectPerturbation(Perturbation):
 
 
 class InitPerturbation(Perturbation):
-    """Task objects start 0.2-0.3 m away from their shipped positions, on reachable free table space."""
+    """Task objects start 0.2-0.3 m away from their shipped positions, on reachable free table space.
+
+    Mode "nudge" moves them 0-2 cm instead: not a robustness test but a supply of fresh starts. LIBERO
+    ships 50 init states per task, and a critic trained on branch rollouts from 25 of them memorises
+    those starts (it ranks its training episodes perfectly and new starts' alternatives weakly), so
+    rollouts from nudged starts give it as many distinct starts as episodes.
+    """
 
     axis = "init"
-    modes = ("generated", "shipped")
-    min_shift, max_shift = 0.2, 0.3
+    modes = ("generated", "shipped", "nudge")
+    shift_range = {"generated": (0.2, 0.3), "nudge": (0.0, 0.02)}  # metres, per mode
     clearance = 0.08  # minimum xy distance between object centres
     reach = (0.3, 0.85)  # xy distance from the robot base that the arm reaches comfortably
     max_tries = 200
@@ -140,7 +146,7 @@ class InitPerturbation(Perturbation):
         return plan
 
     def after_reset(self, domain, episode_seed: int) -> None:
-        if self.mode != "generated":
+        if self.mode not in self.shift_range:
             return
         import mujoco
 
@@ -161,6 +167,8 @@ class InitPerturbation(Perturbation):
         shifts = {}
         for name in (n for n in _task_entities(domain) if n in movable and n in boxes):
             others = {k: v for k, v in boxes.items() if k != name}
+            if self.mode == "nudge":  # keep the shipped start's contacts (a bowl on a plate); make no new ones
+                others = {k: v for k, v in others.items() if _apart(boxes[name], v, self.clearance / 4)}
             delta = self._draw_shift(rng, boxes[name], others, base, area)
             adr = model.jnt_qposadr[model.joint(movable[name]).id]
             data.qpos[adr : adr + 2] += delta
@@ -170,22 +178,28 @@ class InitPerturbation(Perturbation):
         self._record["shifts"] = shifts
 
     def _draw_shift(self, rng, box, others, base, area) -> np.ndarray:
-        """A 0.2-0.3 m shift that keeps the object's footprint within reach, inside the scene's area and
-        clear (by `clearance` / 4) of every other footprint."""
+        """A shift in the mode's `shift_range` that keeps the object's footprint within reach, inside the
+        scene's area and clear (by `clearance` / 4) of every footprint in `others`."""
         lo, hi = box
         margin = self.clearance / 4
         for _ in range(self.max_tries):
             angle = rng.uniform(0, 2 * np.pi)
-            delta = rng.uniform(self.min_shift, self.max_shift) * np.array([np.cos(angle), np.sin(angle)])
+            delta = rng.uniform(*self.shift_range[self.mode]) * np.array([np.cos(angle), np.sin(angle)])
             new_lo, new_hi = lo + delta, hi + delta
             centre = (new_lo + new_hi) / 2
             if not (self.reach[0] <= np.linalg.norm(centre - base) <= self.reach[1]):
                 continue
             if np.any(centre < area[0]) or np.any(centre > area[1]):
                 continue
-            if all(np.any(new_lo > o_hi + margin) or np.any(new_hi < o_lo - margin) for o_lo, o_hi in others.values()):
+            if all(_apart((new_lo, new_hi), other, margin) for other in others.values()):
                 return delta
-        raise RuntimeError(f"no free reachable placement {self.min_shift}-{self.max_shift} m away after {self.max_tries} tries")
+        low, high = self.shift_range[self.mode]
+        raise RuntimeError(f"no free reachable placement {low}-{high} m away after {self.max_tries} tries")
+
+
+def _apart(box, other, margin: float) -> bool:
+    """Whether two xy footprints (lo, hi corners) are more than `margin` apart along some axis."""
+    return bool(np.any(box[0] > other[1] + margin) or np.any(box[1] < other[0] - margin))
 
 
 _SYNONYMS = {

@@ -80,13 +80,15 @@ def collect_rollouts(
     init_states: Sequence[int] | None = None,
     seed: int = 0,
     max_steps: int | None = None,
+    perturbation: str | None = None,
     resume: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Roll `policy` (a directory or a callable) out `episodes` times per task of `suite` (None: every task of it)
     and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
     the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
-    policy as it is; more episodes than `init_states` then repeat episodes exactly).
+    policy as it is; more episodes than `init_states` then repeat episodes exactly). `perturbation`: as in
+    `elegant eval`; "init@nudge" moves the task objects up to 2 cm, so every episode has a start of its own.
 
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
@@ -106,8 +108,10 @@ def collect_rollouts(
     settings = {"policy": name, "rollout": agent.config(), "init_states": source.init_states, "max_steps": max_steps}
     if explore_at is not None:  # only then: files collected before it existed still resume
         settings["explore_at"] = explore_at
+    if perturbation:  # likewise
+        settings["perturbation"] = perturbation
     path = collect_episodes(suite, tasks, episodes, out, source, seed=seed, resume=resume, progress=progress, desc="rollouts",
-                            horizon=lambda spec: max_steps or spec.default_max_steps, settings=settings)
+                            horizon=lambda spec: max_steps or spec.default_max_steps, settings=settings, perturbation=perturbation)
     with DemoFile(path) as f:
         demos = list(f)
     return {

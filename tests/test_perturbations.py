@@ -52,6 +52,25 @@ def test_init_shift_moves_task_objects_into_free_reachable_space():
     env.close()
 
 
+def test_init_nudge_gives_fresh_starts_within_two_centimetres():
+    plain = make_env("libero_goal", 4, seed=0)
+    plain.reset(options={"init_state": 2}, seed=3)
+    target = "akita_black_bowl_1"
+    before = plain.sim.position(target)
+    plain.close()
+    env = make_env("libero_goal", 4, seed=0, perturbation="init@nudge")
+    placements = []
+    for seed in (3, 4, 3):
+        _, info = env.reset(options={"init_state": 2}, seed=seed)
+        placements.append(env.sim.position(target))
+        assert info["perturbation"][0]["mode"] == "nudge" and target in info["perturbation"][0]["shifts"]
+        assert np.linalg.norm((placements[-1] - before)[:2]) <= 0.021
+        assert abs(placements[-1][2] - before[2]) < 0.01 and env.sim.tilt(target) < 0.1 and not info["success"]
+    assert np.allclose(placements[0], placements[2])  # seeded
+    assert np.linalg.norm((placements[0] - placements[1])[:2]) > 1e-3  # another seed, another start
+    env.close()
+
+
 def test_object_recolour_changes_task_object_materials_only():
     env = make_env("libero_object", 2, seed=0, perturbation="object:4", obs="both", camera_size=64, settle_steps=1)
     plain = make_env("libero_object", 2, seed=0, obs="both", camera_size=64, settle_steps=1)

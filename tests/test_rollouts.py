@@ -94,6 +94,24 @@ def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_
         collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), explore=0.1, explore_at=[2], progress=False)
 
 
+def test_nudged_rollouts_start_apart_and_replay_from_their_records(tmp_path):
+    # two episodes from one init state: without the nudge they would start identically
+    summary = collect_rollouts(SUITE, [TASK], Lower(), 2, str(tmp_path / "nudged.hdf5"), init_states=[3], seed=4,
+                               max_steps=STEPS, perturbation="init@nudge", progress=False)
+    with DemoFile(summary["out"]) as f:
+        demos = list(f)
+        assert f.attrs["collection"]["perturbation"] == "init@nudge"
+    assert not np.array_equal(demos[0].states[0], demos[1].states[0])
+    env = make_env(SUITE, TASK, seed=4, max_steps=STEPS, perturbation="init@nudge")
+    for demo in demos:  # the record (reset seed, init state, perturbation) rebuilds the scene, as annotation needs
+        assert [r["mode"] for r in demo.attrs["perturbation"]] == ["nudge"]
+        env.reset(seed=int(demo.attrs["reset_seed"]), options={"init_state": int(demo.attrs["init_state_index"])})
+        for action in demo.actions:
+            env.step(action)
+        np.testing.assert_array_equal(env.get_sim_state(), demo.final_state)
+    env.close()
+
+
 def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
     with pytest.raises(UserInputError, match="expected indices in 0..49"):
         collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), init_states=[60], progress=False)
