@@ -13,6 +13,11 @@ Starts: episode i of a task starts where `elegant eval` episode i would (`episod
 seed and `init_states`). To keep an evaluation honest, collect rollouts on init states the evaluation
 does not use (`--init-states 0-24` here, `elegant eval --init-states 25-49` there): the env and a
 deterministic policy repeat themselves exactly from the same start.
+
+Branches (`explore_at`): the episodes of one start share its reset seed, hence its fixture layout, which
+LIBERO draws on every reset and the state does not show (a stove stands up to 2 cm elsewhere). With a
+reset seed per episode, one start's branches would differ in that hidden layout as well as in the
+explored decision, and a critic could not tell which of the two changed the outcome.
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
 from base_suites.errors import UserInputError
+from base_suites.seeds import derive_seed
 from elegant.evaluation import check_init_states, episode_start, open_policy
 from elegant.jiti import JITI
 
@@ -44,11 +50,18 @@ class _PolicySource:
         self.n_starts = len(self.init_states) if self.init_states is not None else spec.n_init_states
 
     def start(self, spec: Any, episode: int) -> tuple[int, int]:
+        """Where `elegant eval` episode `episode` starts; with `explore_at`, every branch of a start takes its
+        first episode's reset seed too, so the branches share the scene's unobserved fixture layout
+        (drawn from the reset seed) and differ in the explored decision only."""
+        if self.explore_at is not None:
+            episode %= self.n_starts
         return episode_start(self.seed, self.suite, spec.index, episode, spec.n_init_states, self.init_states)
 
     def begin(self, env: LiberoEnv, episode: int, reset_seed: int) -> None:
-        self.agent.reset(env.metadata, seed=reset_seed)
-        if self.explore_at is not None:
+        if self.explore_at is None:
+            self.agent.reset(env.metadata, seed=reset_seed)
+        else:  # branches share the reset seed, not the draw of their explored candidate
+            self.agent.reset(env.metadata, seed=derive_seed(reset_seed, episode))
             self.agent.random_steps = frozenset({branch_step(self.explore_at, episode, self.n_starts)})
 
     def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -108,6 +121,7 @@ def collect_rollouts(
     settings = {"policy": name, "rollout": agent.config(), "init_states": source.init_states, "max_steps": max_steps}
     if explore_at is not None:  # only then: files collected before it existed still resume
         settings["explore_at"] = explore_at
+        settings["branches_share_reset_seed"] = True
     if perturbation:  # likewise
         settings["perturbation"] = perturbation
     path = collect_episodes(suite, tasks, episodes, out, source, seed=seed, resume=resume, progress=progress, desc="rollouts",

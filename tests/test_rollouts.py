@@ -88,6 +88,9 @@ def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_
     assert [branch_step([2, 5], i, 3) for i in range(7)] == [2, 2, 2, 5, 5, 5, 2]
     for early, late in zip(demos[:3], demos[3:]):
         assert early.attrs["init_state_index"] == late.attrs["init_state_index"]
+        # one reset seed per start: the branches share the scene's hidden fixture layout, not just the init state
+        assert early.attrs["reset_seed"] == late.attrs["reset_seed"]
+        assert early.attrs["fixture_layout"] == late.attrs["fixture_layout"]
         np.testing.assert_array_equal(early.states[:3], late.states[:3])  # the same scene up to the branch at step 2
         assert early.actions[2][0] != 0.0 and late.actions[2][0] == 0.0 and late.actions[5][0] != 0.0
     with pytest.raises(UserInputError, match="not both"):
