@@ -252,10 +252,12 @@ def _paired_cell(p: Mapping[str, Any]) -> str:
 
 
 def perturbation_axis(perturbation: str | None) -> str:
-    """The robustness axis a run's perturbation string belongs to: "ori" for none, "init+language" for two."""
+    """The robustness axis a run's perturbation string belongs to: "ori" for none, "init+language" for two.
+    Nudged starts are named apart ("init@nudge"): a 2 cm move is not LIBERO-PRO's position perturbation."""
     if not perturbation:
         return "ori"
-    return "+".join(re.match(r"[a-z_]*", item.strip()).group(0) for item in perturbation.split(","))
+    items = [item.strip() for item in perturbation.split(",")]
+    return "+".join(re.match(r"[a-z_]*", item).group(0) + ("@nudge" if item.endswith("@nudge") else "") for item in items)
 
 
 def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

@@ -122,6 +122,7 @@ def test_compare_runs_without_out_writes_nothing_and_refuses_non_runs(tmp_path):
 
 def test_perturbation_axis_and_atomic_write(tmp_path):
     assert perturbation_axis(None) == "ori" and perturbation_axis("init:3,language@shipped") == "init+language"
+    assert perturbation_axis("init:2@nudge") == "init@nudge"  # fresh starts, not LIBERO-PRO's init axis
     atomic_write(tmp_path / "f.txt", "one")
     atomic_write(tmp_path / "f.txt", b"two")
     assert (tmp_path / "f.txt").read_text() == "two" and [p.name for p in tmp_path.iterdir()] == ["f.txt"]
