@@ -1,8 +1,8 @@
 """LIBERO-PRO perturbations as seeded, composable operators.
 
 Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved
-0.2-0.3 m; or, `init@nudge`, up to 2 cm: fresh starts within the shipped ones' spread), `language` (paraphrased or target-swapped instruction) and `env` (floor, wall and table
-swap). Each operator acts at the stage where the change belongs: before the env is built (which BDDL
+0.2-0.3 m; or, `init@nudge`, up to 2 cm: fresh starts, not a robustness test), `language` (paraphrased
+or target-swapped instruction) and `env` (floor, wall and table swap). Each operator acts at the stage where the change belongs: before the env is built (which BDDL
 file, which instruction, which scene textures), right after it is built (colours), or after every reset
 (positions). The package's shipped LIBERO-PRO variants are used where they exist (`mode="shipped"`); by
 default new variants are generated from the seed, so the number of distinct perturbed tasks is unbounded.
@@ -59,6 +59,11 @@ class Perturbation:
 
     def describe(self) -> dict[str, Any]:
         return dict(self._record)
+
+    @property
+    def robustness_axis(self) -> str:
+        """The LIBERO-PRO axis a run under this operator reports on (`elegant report`)."""
+        return self.axis
 
 
 def _shipped_variant(task: TaskSpec, axis: str) -> TaskSpec:
@@ -125,10 +130,8 @@ class ObjectPerturbation(Perturbation):
 class InitPerturbation(Perturbation):
     """Task objects start 0.2-0.3 m away from their shipped positions, on reachable free table space.
 
-    Mode "nudge" moves them 0-2 cm instead: not a robustness test but a supply of fresh starts. LIBERO
-    ships 50 init states per task, and a critic trained on branch rollouts from 25 of them memorises
-    those starts (it ranks its training episodes perfectly and new starts' alternatives weakly), so
-    rollouts from nudged starts give it as many distinct starts as episodes.
+    Mode "nudge" moves them 0-2 cm instead: not a robustness test but a supply of starts beyond the 50
+    init states LIBERO ships per task, for a critic's training rollouts.
     """
 
     axis = "init"
@@ -137,6 +140,15 @@ class InitPerturbation(Perturbation):
     clearance = 0.08  # minimum xy distance between object centres
     reach = (0.3, 0.85)  # xy distance from the robot base that the arm reaches comfortably
     max_tries = 200
+
+    @property
+    def margin(self) -> float:
+        """How far apart two footprints must stay (xy, along some axis)."""
+        return self.clearance / 4
+
+    @property
+    def robustness_axis(self) -> str:
+        return "init@nudge" if self.mode == "nudge" else self.axis
 
     def plan(self, plan: BuildPlan) -> BuildPlan:
         if self.mode == "shipped":
@@ -168,7 +180,7 @@ class InitPerturbation(Perturbation):
         for name in (n for n in _task_entities(domain) if n in movable and n in boxes):
             others = {k: v for k, v in boxes.items() if k != name}
             if self.mode == "nudge":  # keep the shipped start's contacts (a bowl on a plate); make no new ones
-                others = {k: v for k, v in others.items() if _apart(boxes[name], v, self.clearance / 4)}
+                others = {k: v for k, v in others.items() if _apart(boxes[name], v, self.margin)}
             delta = self._draw_shift(rng, boxes[name], others, base, area)
             adr = model.jnt_qposadr[model.joint(movable[name]).id]
             data.qpos[adr : adr + 2] += delta
@@ -179,9 +191,8 @@ class InitPerturbation(Perturbation):
 
     def _draw_shift(self, rng, box, others, base, area) -> np.ndarray:
         """A shift in the mode's `shift_range` that keeps the object's footprint within reach, inside the
-        scene's area and clear (by `clearance` / 4) of every footprint in `others`."""
+        scene's area and clear (by `margin`) of every footprint in `others`."""
         lo, hi = box
-        margin = self.clearance / 4
         for _ in range(self.max_tries):
             angle = rng.uniform(0, 2 * np.pi)
             delta = rng.uniform(*self.shift_range[self.mode]) * np.array([np.cos(angle), np.sin(angle)])
@@ -191,7 +202,7 @@ class InitPerturbation(Perturbation):
                 continue
             if np.any(centre < area[0]) or np.any(centre > area[1]):
                 continue
-            if all(_apart((new_lo, new_hi), other, margin) for other in others.values()):
+            if all(_apart((new_lo, new_hi), other, self.margin) for other in others.values()):
                 return delta
         low, high = self.shift_range[self.mode]
         raise RuntimeError(f"no free reachable placement {low}-{high} m away after {self.max_tries} tries")

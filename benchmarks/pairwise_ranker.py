@@ -23,8 +23,7 @@ import numpy as np
 import torch
 
 from annotations import DemoFile
-from critics import explored_mask
-from elegant.branch_ranking import branch_ranking
+from elegant.branch_ranking import branch_ranking, single_explored_step
 from elegant.evaluation import open_policy
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import chunk_of
@@ -41,14 +40,12 @@ class Branch:
 
 
 def read_branches(path: str, chunk: int) -> list[Branch]:
-    """Every episode of an annotated rollouts file; `explored_at` is None unless exactly one whole chunk was explored."""
+    """Every episode of an annotated rollouts file (`explored_at` as rank-check counts it)."""
     branches = []
     with DemoFile(path, require_labels=True) as f:
         for demo in f:
-            steps = np.flatnonzero(explored_mask(demo.attrs, len(demo.actions), path))
-            single = len(steps) == 1 and steps[0] + chunk <= len(demo.actions)
             branches.append(Branch(int(demo.attrs["task_index"]), (int(demo.attrs["init_state_index"]), int(demo.attrs["reset_seed"])),
-                                   int(steps[0]) if single else None, float(demo.attrs["elegant"]),
+                                   single_explored_step(demo, chunk, path), float(demo.attrs["elegant"]),
                                    np.asarray(demo.obs), np.asarray(demo.actions)))
     return branches
 

@@ -43,6 +43,15 @@ def _metadata(f: DemoFile, demo: Demo) -> dict[str, Any]:
             "state_layout": f.state_layouts[demo.task_key]}
 
 
+def single_explored_step(demo: Demo, chunk: int, where: str) -> int | None:
+    """The step of an episode's one explored decision, or None when it explored none or several, or ended
+    inside the explored chunk: only such episodes compare one alternative with the plan."""
+    steps = np.flatnonzero(explored_mask(demo.attrs, len(demo.actions), where))
+    if len(steps) != 1 or steps[0] + chunk > len(demo.actions):
+        return None
+    return int(steps[0])
+
+
 def _summary(rows: list[tuple[bool, float, float]], skipped: int) -> dict[str, Any]:
     elegant = np.array([r[0] for r in rows], dtype=bool)
     advantage = np.array([r[1] - r[2] for r in rows])
@@ -71,12 +80,11 @@ def branch_ranking(path: str, policy: Any, critic: Any, *, progress: bool = Fals
         for name in tqdm(f.names, desc="rank", unit="ep", disable=not progress):
             demo = f.demo(name)
             where = f"{path}: data/{name}"
-            steps = np.flatnonzero(explored_mask(demo.attrs, len(demo.actions), where))
             key = demo.task_key
-            if len(steps) != 1 or steps[0] + chunk > len(demo.actions):
+            explored_at = single_explored_step(demo, chunk, where)
+            if explored_at is None:
                 skipped[key] += 1
                 continue
-            explored_at = int(steps[0])
             if key not in metadata:
                 metadata[key] = _metadata(f, demo)
             policy.reset(metadata[key], seed=0)

@@ -114,7 +114,7 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
                    "candidate at one of them (starts cycle first, then the steps), so episodes from one start differ in one decision")
     p.add_argument("--trust-radius", type=float, default=0.3)
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)")
-    p.add_argument("--perturbation", help="as in eval; init@nudge moves the task objects up to 2 cm, giving every episode its own start")
+    p.add_argument("--perturbation", help="as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states")
     p.add_argument("--max-steps", type=int)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")

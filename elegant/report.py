@@ -12,7 +12,6 @@ from __future__ import annotations
 import io
 import json
 import os
-import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +21,7 @@ import numpy as np
 from annotations.format import CRITERIA, SEGMENT_LENGTH
 from base_suites.atomic import atomic_write
 from base_suites.errors import UserInputError
+from base_suites.perturbations import parse_perturbations
 from elegant.episode_log import EpisodeLog, run_records
 from elegant.jiti import choose_candidate, eligible_candidates
 from elegant.metrics import paired_comparison, robustness_metrics, summarize
@@ -252,12 +252,11 @@ def _paired_cell(p: Mapping[str, Any]) -> str:
 
 
 def perturbation_axis(perturbation: str | None) -> str:
-    """The robustness axis a run's perturbation string belongs to: "ori" for none, "init+language" for two.
-    Nudged starts are named apart ("init@nudge"): a 2 cm move is not LIBERO-PRO's position perturbation."""
+    """The robustness axis a run's perturbation string belongs to: "ori" for none, "init+language" for two
+    (each operator names its own: nudged starts are "init@nudge", not LIBERO-PRO's position perturbation)."""
     if not perturbation:
         return "ori"
-    items = [item.strip() for item in perturbation.split(",")]
-    return "+".join(re.match(r"[a-z_]*", item).group(0) + ("@nudge" if item.endswith("@nudge") else "") for item in items)
+    return "+".join(p.robustness_axis for p in parse_perturbations(perturbation))
 
 
 def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:

@@ -101,7 +101,8 @@ def collect_rollouts(
     and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
     the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
     policy as it is; more episodes than `init_states` then repeat episodes exactly). `perturbation`: as in
-    `elegant eval`; "init@nudge" moves the task objects up to 2 cm, so every episode has a start of its own.
+    `elegant eval`; "init@nudge" moves the task objects up to 2 cm, giving starts beyond the shipped ones
+    (with `explore_at`, a start's branches share its nudge).
 
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
