@@ -1,10 +1,12 @@
 """The elegance critic: offline Cal-QL with TorchRL, exported as plain torch modules for run-time decisions.
 
 Data (`load_transitions`, `make_replay_buffer`) -> loss (`CalQLLoss`) -> training (`train_critic`) ->
-artifact (`load` -> `Critic`, whose `bind(metadata)` and `q(state, actions)` JITI calls) -> held-out
+artifact (`load` -> `Critic`, whose `bind(metadata)` and `q(state, actions)` JITI calls; `load_ensemble` ->
+`CriticEnsemble`, several seeds scored together) -> held-out
 quality (`evaluate_critic`; `continuation_pairs` + `pair_preference`: clean vs knob continuations).
 """
 from critics.artifact import Critic, load, save_critic
+from critics.ensemble import CriticEnsemble, load_ensemble
 from critics.data import REWARDS, TransitionData, action_chunks, chunk_transitions, explored_mask, load_transitions, make_replay_buffer
 from critics.loss import BACKUPS, VALUE_LOSSES, CalQLLoss, CalQLTerms, cql_logsumexp
 from critics.networks import TanhGaussianActor, TwinQNetwork
@@ -13,7 +15,7 @@ from critics.quality import Continuation, Pair, PairList, auroc, continuation_pa
 from critics.train import TrainConfig, train_critic
 
 __all__ = [
-    "BACKUPS", "CalQLLoss", "CalQLTerms", "Continuation", "Critic", "Normalization", "Pair", "PairList", "REWARDS", "TanhGaussianActor", "TrainConfig",
-    "TransitionData", "TwinQNetwork", "VALUE_LOSSES", "action_chunks", "auroc", "chunk_transitions", "continuation_pairs", "cql_logsumexp", "evaluate_critic", "explored_mask", "load", "load_transitions",
+    "BACKUPS", "CalQLLoss", "CalQLTerms", "Continuation", "Critic", "CriticEnsemble", "Normalization", "Pair", "PairList", "REWARDS", "TanhGaussianActor", "TrainConfig",
+    "TransitionData", "TwinQNetwork", "VALUE_LOSSES", "action_chunks", "auroc", "chunk_transitions", "continuation_pairs", "cql_logsumexp", "evaluate_critic", "explored_mask", "load", "load_ensemble", "load_transitions",
     "make_replay_buffer", "pair_preference", "save_critic", "train_critic",
 ]

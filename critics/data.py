@@ -261,7 +261,8 @@ def _elegant_success(demos: list[_RawDemo], gamma: float) -> tuple[torch.Tensor,
     return torch.from_numpy(np.concatenate(rewards)), torch.from_numpy(np.concatenate(returns)), np.concatenate(ended)
 
 
-def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: str = "step", chunk: int = 1) -> TransitionData:
+def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: str = "step", chunk: int = 1,
+                     bootstrap: int | None = None) -> TransitionData:
     """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
 
     gamma: the critic's discount (default: the annotation's). A shorter horizon than the annotation's
@@ -272,7 +273,10 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
     target) is one step under "step", next to a tilt's dozens, so Q barely registers it; per window every
     violation weighs a window, the actions leading up to it inside the window share its penalty, and
     human labels (which are per window) reach the critic as they are.
-    chunk: the number of actions each transition's action holds (see the module docstring)."""
+    chunk: the number of actions each transition's action holds (see the module docstring).
+    bootstrap: a seed, to train on as many episodes drawn with replacement from all of them (a bootstrap
+    resample): critics trained on different resamples err apart where the data says little, which a
+    `CriticEnsemble` needs and different network seeds on the same data do not give."""
     if gamma is not None and not 0.0 < gamma < 1.0:
         raise UserInputError(f"gamma must lie in (0, 1), got {gamma}")
     if int(chunk) != chunk or chunk < 1:
@@ -299,6 +303,8 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
             demos += _read_demos(f, f.state_layouts)
     if not demos:
         raise UserInputError(f"{', '.join(paths)}: no demos to train on")
+    if bootstrap is not None:
+        demos = [demos[i] for i in np.random.default_rng(int(bootstrap)).integers(0, len(demos), len(demos))]
     encoder = TaskFeatureEncoder(layouts)
 
     obs = np.concatenate([encoder.encode(d.obs, d.task) for d in demos])

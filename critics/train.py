@@ -70,6 +70,7 @@ class TrainConfig:
     mc_weight: float = 0.0  # weight of Q's regression on the Monte-Carlo returns beside TD (CalQLLoss)
     value_loss: str = "mse"  # or "bce": logit critics classified against target probabilities (CalQLLoss)
     explored_fraction: float = 0.0  # share of each batch drawn from the explored decisions' transitions
+    bootstrap: int | None = None  # train on a bootstrap resample of the episodes drawn with this seed
 
     @property
     def explored_per_batch(self) -> int:
@@ -183,7 +184,8 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
     # settings added after some checkpoints were written, with the values those runs trained with
-    added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse", "explored_fraction": 0.0}
+    added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse", "explored_fraction": 0.0,
+             "bootstrap": None}
     changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added)
     if changed:
         raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
@@ -240,6 +242,7 @@ def train_critic(
     mc_weight: float = 0.0,
     value_loss: str = "mse",
     explored_fraction: float = 0.0,
+    bootstrap: int | None = None,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
@@ -254,7 +257,8 @@ def train_critic(
     the TD target's next action): see `CalQLLoss`; weight_decay: decoupled weight decay of the critics (not
     the actor); mc_weight, value_loss: see `CalQLLoss`; explored_fraction: the share of each batch drawn
     from the transitions of explored decisions (`explored_steps` of `elegant rollouts` files), the rest
-    uniformly from all. Learning rates and tau are `TrainConfig`'s.
+    uniformly from all; bootstrap: a seed to train on a bootstrap resample of the episodes (one member of
+    a `CriticEnsemble`), see `critics.data.load_transitions`. Learning rates and tau are `TrainConfig`'s.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -265,6 +269,7 @@ def train_critic(
         hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
         log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
         backup=backup, weight_decay=weight_decay, mc_weight=mc_weight, value_loss=value_loss, explored_fraction=explored_fraction,
+        bootstrap=bootstrap,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)
@@ -272,7 +277,7 @@ def train_critic(
     if os.path.exists(ckpt_path) and not resume:
         raise UserInputError(f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory")
 
-    data = load_transitions(cfg.paths, cfg.gamma, cfg.reward, cfg.chunk)
+    data = load_transitions(cfg.paths, cfg.gamma, cfg.reward, cfg.chunk, cfg.bootstrap)
     fingerprint = data.fingerprint()
     run = _Run(cfg, data)
     start = 0

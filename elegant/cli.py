@@ -233,6 +233,9 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
                    "to the target probability by cross-entropy")
     p.add_argument("--explored-fraction", type=float, default=0.0,
                    help="share of each batch drawn from explored decisions (rollouts' explored_steps), e.g. 0.5")
+    p.add_argument("--bootstrap", type=int, metavar="SEED",
+                   help="train on a bootstrap resample of the episodes drawn with this seed: one member of a critic "
+                   "ensemble (pass the members' directories comma-separated to eval --critic)")
     p.add_argument("--resume", action="store_true")
 
 
@@ -244,14 +247,15 @@ def _train_critic(args: argparse.Namespace) -> dict:
                         n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
                         with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk,
                         backup=args.backup, hidden=parse_indices(args.hidden, "--hidden"), weight_decay=args.weight_decay,
-                        mc_weight=args.mc_weight, value_loss=args.value_loss, explored_fraction=args.explored_fraction)
+                        mc_weight=args.mc_weight, value_loss=args.value_loss, explored_fraction=args.explored_fraction,
+                        bootstrap=args.bootstrap)
 
 
 def _rank_check_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("rollouts", help="annotated branch rollouts (elegant rollouts --explore-at, then elegant annotate), "
                    "best from starts the critic did not train on")
     p.add_argument("--policy", required=True, help="the policy directory that recorded the rollouts")
-    p.add_argument("--critic", required=True, help="critic directory (from train-critic)")
+    p.add_argument("--critic", required=True, help="critic directory (from train-critic), or comma-separated ones scored as an ensemble")
     p.add_argument("--out", help="also write the result here as JSON")
 
 
@@ -274,7 +278,8 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
-    p.add_argument("--critic", help="critic directory (from train-critic); required for jiti and always")
+    p.add_argument("--critic", help="critic directory (from train-critic), or comma-separated ones: an ensemble whose members "
+                   "must all prefer an override; required for jiti and always")
     p.add_argument("--mode", choices=MODES, default="jiti")
     p.add_argument("--episodes", type=int, default=10, help="episodes per task")
     p.add_argument("--seed", type=int, default=0)

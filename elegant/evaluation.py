@@ -86,11 +86,13 @@ def open_policy(policy: Any) -> Any:
 
 
 def open_critic(critic: Any) -> Any:
-    """A critic directory loaded (`critics.load`), or a critic object (or None) passed through."""
+    """A critic directory loaded (`critics.load`), comma-separated directories loaded as one ensemble
+    (`critics.load_ensemble`), or a critic object (or None) passed through."""
     if isinstance(critic, (str, os.PathLike)):
         import critics
 
-        return critics.load(critic)
+        paths = str(critic).split(",")
+        return critics.load(paths[0]) if len(paths) == 1 else critics.load_ensemble(paths)
     return critic
 
 

@@ -31,6 +31,10 @@ Choices made here, each for a reason:
   critic's scores of actions a few millimetres apart differ by its noise (with the libero_goal critic
   the median gain of a chosen alternative was 0.01, on returns in [-10, 0]), and an override on noise
   is a random perturbation of a policy whose elegant executions are fragile.
+- An ensemble critic (`critics.CriticEnsemble`: critics of several seeds) is watched through its mean Q,
+  and a candidate replaces the base action only if every member scores it higher (by `min_gain`): one
+  critic's ranking of alternatives on new starts is barely better than chance, and where seeds
+  disagree the data did not decide.
 - Candidates: the base policy is adapted with `elegant.policies.as_policy`, so they come from its own
   `sample(obs, N)` when it has one (GMM, diffusion noise, a stochastic TorchRL module) and otherwise
   from the adapter's seeded Gaussian perturbations of a_t, clipped to the action bounds. Candidate 0
@@ -162,11 +166,17 @@ def eligible_candidates(distance: np.ndarray, trust_radius: float | None) -> np.
 
 
 def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: float | None, min_gain: float = 0.0) -> int:
-    """Index of the best-scored eligible candidate (`eligible_candidates`); the first maximum, so the base
-    action wins ties and JITI never overrides without a reason. The base action (0) is also kept unless
-    the best one scores more than `min_gain` above it."""
-    best = int(np.argmax(np.where(eligible_candidates(distance, trust_radius), scores, -np.inf)))
-    return best if scores[best] - scores[0] > min_gain else 0
+    """Index of the best eligible candidate (`eligible_candidates`), or 0, the base action.
+
+    `scores` is (n,) for one critic or (members, n) for an ensemble (`critics.CriticEnsemble.member_q`).
+    A candidate can replace the base action only if every member scores it more than `min_gain` above
+    the base action; among those the best mean score wins (the first maximum). So JITI never overrides
+    without a reason, and with an ensemble not on one member's say."""
+    members = np.atleast_2d(np.asarray(scores, dtype=np.float64))
+    agreed = np.all(members - members[:, :1] > min_gain, axis=0) & eligible_candidates(distance, trust_radius)
+    if not agreed.any():
+        return 0
+    return int(np.argmax(np.where(agreed, members.mean(axis=0), -np.inf)))
 
 
 def _choice_rng(seed: int) -> np.random.Generator:
@@ -292,7 +302,7 @@ class JITI:
         start = time.perf_counter()
         step, self._step = self._step, self._step + 1
         q = mean = std = dq = tau = None
-        candidates = scores_c = None
+        candidates = scores_c = member_scores = None
         if self.critic is not None:
             state = _state_of(obs)
             if len(self._scores) == self.window:  # plain Python: ~10x faster than numpy on 10 floats
@@ -301,10 +311,10 @@ class JITI:
                 tau = self.threshold if self.threshold_mode == "absolute" else self.threshold * std
             if self.mode == "always":
                 candidates = self._candidates(obs, plan)
-                scores_c = self._score(state, candidates)
-                q = float(scores_c[0])
+                member_scores = self._score(state, candidates)
             else:
-                q = float(self._score(state, plan[None])[0])
+                member_scores = self._score(state, plan[None])
+            q = float(member_scores[:, 0].mean())
             if mean is not None:
                 dq = abs(q - mean)
         critical = dq is not None and (dq > tau if self.trigger == "deviation" else mean - q > tau)
@@ -312,12 +322,13 @@ class JITI:
             (self.mode == "random" and self._explores(step))
         if intervene:
             candidates = self._candidates(obs, plan)
-            if self.critic is not None:  # the base plan's score is q: only the alternatives are new
-                scores_c = np.concatenate([[q], self._score(state, candidates[1:])])
+            if self.critic is not None:  # the base plan's scores are known: only the alternatives are new
+                member_scores = np.concatenate([member_scores[:, :1], self._score(state, candidates[1:])], axis=1)
         chosen, chosen_q, executed, distance = 0, q, plan, None
         if candidates is not None:
             distance = plan_distance(candidates)
-            chosen = self._random_choice(distance) if self.mode == "random" else choose_candidate(scores_c, distance, self.trust_radius, self.min_gain)
+            scores_c = None if self.critic is None else member_scores.mean(axis=0)
+            chosen = self._random_choice(distance) if self.mode == "random" else choose_candidate(member_scores, distance, self.trust_radius, self.min_gain)
             executed = candidates[chosen]
             chosen_q = None if scores_c is None else float(scores_c[chosen])
         if chosen_q is not None:
@@ -349,9 +360,15 @@ class JITI:
         return draw_candidates(self.policy, obs, plan, self.n_candidates)
 
     def _score(self, state: np.ndarray, plans: np.ndarray) -> np.ndarray:
-        scores = np.asarray(self.critic.q(state, plans.reshape(len(plans), -1)), dtype=np.float64).reshape(-1)
-        if scores.shape != (len(plans),):
-            raise ValueError(f"critic.q returned {scores.shape[0]} scores for {len(plans)} actions")
+        """(members, n) scores of the plans: one row for a plain critic, one per member for an ensemble."""
+        flat = plans.reshape(len(plans), -1)
+        member_q = getattr(self.critic, "member_q", None)
+        if member_q is None:
+            scores = np.asarray(self.critic.q(state, flat), dtype=np.float64).reshape(1, -1)
+        else:
+            scores = np.asarray(member_q(state, flat), dtype=np.float64)
+        if scores.ndim != 2 or scores.shape[1] != len(plans):
+            raise ValueError(f"the critic returned scores of shape {scores.shape} for {len(plans)} actions")
         return scores
 
     @property

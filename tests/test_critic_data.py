@@ -219,6 +219,26 @@ def test_the_data_fingerprint_follows_the_explored_decisions(tmp_path):
     assert first != plain and first != fingerprint("b.hdf5", {0: [4]}) and first == fingerprint("c.hdf5", {0: [3]})
 
 
+def test_a_bootstrap_resample_draws_whole_episodes_with_replacement_by_its_seed(tmp_path):
+    """An ensemble member trains on as many episodes as there are, drawn with replacement: whole episodes
+    (each one's length and actions intact), the same draw for the same seed, another for another."""
+    path = write_annotated(tmp_path / "b.hdf5", n_demos=8)
+
+    def episodes(data):
+        """Each episode's raw actions, in the order the transitions hold them."""
+        td, norm = data.transitions, data.normalization
+        ends = np.flatnonzero(td["next", "done"].squeeze(-1).numpy()) + 1
+        raw = td["action"].numpy() * norm.action_half_range + norm.action_center
+        return [np.round(a, 4).tobytes() for a in np.split(raw, ends[:-1])]
+
+    whole = episodes(load_transitions([path]))
+    drawn = episodes(load_transitions([path], bootstrap=3))
+    assert len(drawn) == len(whole) == 8
+    assert set(drawn) <= set(whole) and len(set(drawn)) < len(set(whole))  # some episodes twice, some left out
+    assert load_transitions([path], bootstrap=3).fingerprint() == load_transitions([path], bootstrap=3).fingerprint()
+    assert episodes(load_transitions([path], bootstrap=4)) != drawn
+
+
 def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):
     plain = write_annotated(tmp_path / "plain.hdf5", labelled=False)
     with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):

@@ -199,6 +199,30 @@ def test_the_in_sample_backup_reaches_the_loss_and_binds_a_resume(annotated, tmp
         train_critic([annotated], str(tmp_path / "bad"), steps=1, backup="expectile", **TINY)
 
 
+def test_bootstrap_members_load_as_an_ensemble_that_scores_with_each_of_them(annotated, tmp_path):
+    """Members trained on bootstrap resamples record their resample and differ; comma-separated
+    directories open as one `CriticEnsemble` whose `q` is the members' mean; a resume keeps the resample."""
+    from critics import CriticEnsemble
+    from elegant.evaluation import open_critic
+
+    members = [str(tmp_path / f"m{b}") for b in (1, 2)]
+    for b, out in zip((1, 2), members):
+        train_critic([annotated], out, steps=3, bootstrap=b, **TINY)
+        assert load(out).config["training"]["bootstrap"] == b
+    ensemble = open_critic(",".join(members))
+    assert isinstance(ensemble, CriticEnsemble) and ensemble.chunk == 1
+    ensemble.bind(metadata(1))
+    rng = np.random.default_rng(0)
+    state, actions = rng.normal(size=sum(s for _, s in task_layout(1))), rng.uniform(-0.5, 0.5, size=(5, 7))
+    each = [load(m).bind(metadata(1)).q(state, actions) for m in members]
+    assert np.allclose(ensemble.member_q(state, actions), each) and not np.allclose(*each)
+    assert np.allclose(ensemble.q(state, actions), np.mean(each, axis=0))
+    with pytest.raises(UserInputError, match="libero_object/7"):
+        ensemble.bind(metadata(7))
+    with pytest.raises(UserInputError, match="cannot resume with different bootstrap"):
+        train_critic([annotated], members[0], steps=4, resume=True, bootstrap=2, **TINY)
+
+
 def test_weight_decay_shrinks_the_critics_weights_only_and_binds_a_resume(annotated, tmp_path):
     runs = {wd: str(tmp_path / f"wd{wd}") for wd in (0.0, 0.5)}
     for wd, run in runs.items():

@@ -258,6 +258,50 @@ def test_min_gain_keeps_the_base_action_unless_the_best_candidate_beats_it_by_mo
         JITI(SamplingPolicy(), ScriptedCritic([]), min_gain=-0.1)
 
 
+class TiltedCritic(ScriptedCritic):
+    """Q(s, a) = base_q[t] + tilt * a[0] + bump at candidate row `bumped` (a[0] = bumped / 100)."""
+
+    def __init__(self, base_q, tilt, bumped=None, bump=0.0):
+        super().__init__(base_q)
+        self.tilt, self.bumped, self.bump = tilt, bumped, bump
+
+    def q(self, state, actions):
+        first = np.asarray(actions)[:, 0]
+        bonus = np.where(np.isclose(first, (self.bumped or 0) / 100.0) & (self.bumped is not None), self.bump, 0.0)
+        return self.base_q[int(state[0])] + self.tilt * first + bonus
+
+
+def test_an_ensemble_overrides_only_with_every_members_agreement_and_picks_the_best_mean():
+    from critics import CriticEnsemble
+
+    # both members prefer higher a[0] (the second member half as much, with a bump at candidate 3): best mean is 15
+    agree = CriticEnsemble([TiltedCritic([5.0] * 3, 1.0), TiltedCritic([7.0] * 3, 0.5, bumped=3, bump=0.05)])
+    jiti = JITI(SamplingPolicy(), agree, mode="always")
+    rollout(jiti, 3)
+    assert [d.chosen for d in jiti.log] == [15] * 3
+    assert jiti.log[0].q == pytest.approx(6.0) and jiti.log[0].chosen_q == pytest.approx(6.0 + 0.75 * 0.15)
+    # one member prefers lower a[0] except for a bump at candidate 3: only candidate 3 has both votes
+    split = CriticEnsemble([TiltedCritic([5.0] * 3, 1.0), TiltedCritic([5.0] * 3, -1.0, bumped=3, bump=0.5)])
+    jiti = JITI(SamplingPolicy(), split, mode="always")
+    rollout(jiti, 3)
+    assert [d.chosen for d in jiti.log] == [3] * 3
+    # without the bump no candidate has both votes: the base action stays, though the mean is flat
+    against = CriticEnsemble([TiltedCritic([5.0] * 3, 1.0), TiltedCritic([5.0] * 3, -1.0)])
+    jiti = JITI(SamplingPolicy(), against, mode="always")
+    rollout(jiti, 3)
+    assert [d.chosen for d in jiti.log] == [0] * 3 and jiti.log[0].candidate_q == [5.0] * 16
+
+
+def test_an_ensemble_refuses_a_single_member_or_mixed_chunk_lengths():
+    from critics import CriticEnsemble
+
+    with pytest.raises(UserInputError, match="at least 2"):
+        CriticEnsemble([ScriptedCritic([])])
+    chunked = ChunkCritic([])
+    with pytest.raises(UserInputError, match="chunks of one length"):
+        CriticEnsemble([ScriptedCritic([]), chunked])
+
+
 class ChunkPolicy:
     """Decides 3 actions at a time: row i of a plan is BASE with a[1] = i / 10 (its place in the chunk);
     candidate k of `sample_plans` has a[0] = k / 100 on every row. Records where it planned and observed."""

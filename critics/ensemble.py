@@ -1,0 +1,53 @@
+"""Several independently trained critics scored together, so JITI can ask whether they agree.
+
+One critic's ranking of a policy's alternatives on new starts is only a little better than chance
+(held-out advantage AUROC about 0.70 on libero_goal/1, README "Session 23"), and its confident-looking
+overrides of a good plan are where JITI loses elegance. Critics trained from different seeds on the same
+data err differently where the data says little, and agree where it is clear. `CriticEnsemble` scores a
+state's candidates with every member: `q` is their mean (the value JITI's window watches), and
+`member_q` gives each member's scores so a selection rule can demand that every member prefers an
+alternative to the base plan before overriding it.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from base_suites.errors import UserInputError
+from critics.artifact import load
+
+
+class CriticEnsemble:
+    """Critics with the same chunk length, scored together; a drop-in critic (`bind`, `q`, `chunk`)."""
+
+    def __init__(self, members: Sequence[Any]) -> None:
+        if len(members) < 2:
+            raise UserInputError(f"a critic ensemble needs at least 2 critics, got {len(members)}")
+        chunks = {int(getattr(m, "chunk", 1)) for m in members}
+        if len(chunks) != 1:
+            paths = ", ".join(f"{getattr(m, 'path', '?')} (chunk {getattr(m, 'chunk', 1)})" for m in members)
+            raise UserInputError(f"the critics of an ensemble must score chunks of one length; got {paths}")
+        self.members = list(members)
+        self.chunk = chunks.pop()
+        self.path = ",".join(str(getattr(m, "path", "critic")) for m in self.members)
+
+    def bind(self, metadata: Mapping[str, Any]) -> "CriticEnsemble":
+        """Bind every member to the env's task (each refuses a task it was not trained on)."""
+        for member in self.members:
+            member.bind(metadata)
+        return self
+
+    def member_q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Every member's Q of the actions: shape (members,) + the shape one critic's `q` returns."""
+        return np.stack([np.asarray(m.q(state, actions), dtype=np.float64) for m in self.members])
+
+    def q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The members' mean Q: the shape one critic's `q` returns."""
+        return self.member_q(state, actions).mean(axis=0)
+
+
+def load_ensemble(paths: Sequence[str]) -> CriticEnsemble:
+    """The critics in these directories (each `critics.load`) as one ensemble."""
+    return CriticEnsemble([load(path) for path in paths])
