@@ -65,11 +65,12 @@ def check_init_states(init_states: Sequence[int] | None, n_init_states: int) -> 
 
 
 def _describe(obj: Any) -> str | None:
-    """How config.json names a policy or critic: its directory, or the qualified name of its type."""
+    """How config.json names a policy or critic: its directory (comma-separated directories for a critic
+    ensemble), or the qualified name of its type."""
     if obj is None:
         return None
     if isinstance(obj, (str, os.PathLike)):
-        return os.path.abspath(os.fspath(obj))
+        return ",".join(os.path.abspath(path) for path in os.fspath(obj).split(","))
     named = obj if hasattr(obj, "__qualname__") else type(obj)
     return f"{named.__module__}.{named.__qualname__}"
 

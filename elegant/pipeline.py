@@ -53,6 +53,9 @@ class ChainConfig:
     and `explored_fraction`: the small regularised outcome classifier of issue 7 (README, `elegant eval`)
     is `critic_reward="elegant"`, `critic_value_loss="bce"`, `critic_hidden=(64, 64)`,
     `critic_weight_decay=0.1`, `critic_mc_weight=10`, `critic_explored_fraction=0.5`.
+    `critic_members`: with more than one, that many critics are trained, member k on a bootstrap resample
+    of the episodes (seed and resample `seed + k`, `train_critic`'s `bootstrap`), into `critic_1` ..
+    `critic_K`, and JITI judges with them as a `critics.CriticEnsemble` (every member must prefer an override).
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -86,12 +89,13 @@ class ChainConfig:
     critic_value_loss: str = "mse"
     critic_explored_fraction: float = 0.0
     trigger: str | None = None
+    critic_members: int = 1
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
         if unknown or not self.modes:
             raise UserInputError(f"chain modes {list(self.modes)}: expected some of {', '.join(MODES)}")
-        for name in ("demos", "critic_steps", "policy_epochs", "episodes", "chunk"):
+        for name in ("demos", "critic_steps", "policy_epochs", "episodes", "chunk", "critic_members"):
             if getattr(self, name) < 1:
                 raise UserInputError(f"chain {name} must be >= 1, got {getattr(self, name)}")
         if self.policy_modes is not None and self.policy_modes < 1:
@@ -167,7 +171,7 @@ QUICKSTART = ChainConfig()
 # settings a chain directory may predate
 _ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
                 "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
-                "critic_explored_fraction", "trigger")
+                "critic_explored_fraction", "trigger", "critic_members")
 
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:
@@ -227,7 +231,9 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     annotated = {s: os.path.join(out, f"annotated_{s}.hdf5") for s in cfg.suites}
     rollouts = {s: os.path.join(out, f"rollouts_{s}.hdf5") for s in cfg.suites}
     annotated_rollouts = {s: os.path.join(out, f"annotated_rollouts_{s}.hdf5") for s in cfg.suites}
-    critic_dir, policy_dir = os.path.join(out, "critic"), os.path.join(out, "policy")
+    policy_dir = os.path.join(out, "policy")
+    members = [{}] if cfg.critic_members == 1 else [{"seed": cfg.seed + k, "bootstrap": cfg.seed + k} for k in range(cfg.critic_members)]
+    critic_dirs = [os.path.join(out, "critic" if len(members) == 1 else f"critic_{k + 1}") for k in range(len(members))]
     rollout_starts, eval_starts = _init_split(cfg)
     runs = {m: {s: os.path.join(out, f"eval_{m}_{s}") for s in cfg.suites} for m in cfg.modes}
 
@@ -264,15 +270,17 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
             say(f"annotate the rollouts of {suite}")
             annotate_file(rollouts[suite], annotated_rollouts[suite], resume=True, progress=progress)
         critic_data.append(annotated_rollouts[suite])
-    if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
-        say(f"train critic: Cal-QL, {cfg.critic_steps} steps")
-        train_critic(critic_data, critic_dir, **cfg.critic_settings(), resume=True, progress=progress)
+    for k, (critic_dir, member) in enumerate(zip(critic_dirs, members)):
+        if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
+            which = f" member {k + 1} of {len(members)} (bootstrap resample {member['bootstrap']})" if member else ""
+            say(f"train critic{which}: Cal-QL, {cfg.critic_steps} steps")
+            train_critic(critic_data, critic_dir, **{**cfg.critic_settings(), **member}, resume=True, progress=progress)
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:
             say(f"evaluate {mode} on {suite}: {cfg.episodes} episodes per task")
             summaries[mode][suite] = evaluate(
-                suite, tasks, policy_dir, critic_dir if needs_critic else None, mode=mode, episodes=cfg.episodes,
+                suite, tasks, policy_dir, ",".join(critic_dirs) if needs_critic else None, mode=mode, episodes=cfg.episodes,
                 seed=cfg.seed, out=runs[mode][suite], resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode),
                 max_steps=cfg.max_steps, init_states=eval_starts,
             )
