@@ -297,6 +297,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-gain", type=float, help="override the base action only when the best candidate's Q beats its Q by more than this")
     p.add_argument("--trigger", choices=TRIGGERS,
                    help="critical moment: |q - mean| > tau (deviation, default) or q below the mean by more than tau (drop)")
+    p.add_argument("--max-overrides", type=int, help="mode jiti: stop intervening after this many overrides in an episode (default: no limit)")
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
 
 

@@ -35,6 +35,10 @@ Choices made here, each for a reason:
   and a candidate replaces the base action only if every member scores it higher (by `min_gain`): one
   critic's ranking of alternatives on new starts is barely better than chance, and where seeds
   disagree the data did not decide.
+- `max_overrides` caps the alternatives executed per episode. Overrides compound: once one has moved the
+  robot off the policy's course, the critic can score every later base plan far below the alternatives
+  and override again and again (on libero_goal/0 the episodes JITI spoiled had 4 to 18 overrides; those
+  it made elegant on libero_goal/4 had 1 to 3). The few critical moments JITI is for fit in a small budget.
 - Candidates: the base policy is adapted with `elegant.policies.as_policy`, so they come from its own
   `sample(obs, N)` when it has one (GMM, diffusion noise, a stochastic TorchRL module) and otherwise
   from the adapter's seeded Gaussian perturbations of a_t, clipped to the action bounds. Candidate 0
@@ -214,6 +218,7 @@ class JITI:
         min_gain: float = 0.0,
         random_steps: Collection[int] | None = None,
         trigger: str = "deviation",
+        max_overrides: int | None = None,
     ) -> None:
         if mode not in MODES:
             raise unknown_choice("JITI mode", mode, MODES)
@@ -235,6 +240,8 @@ class JITI:
             raise UserInputError(f"JITI min_gain must be >= 0, got {min_gain}")
         if not 0.0 <= float(random_rate) <= 1.0:
             raise UserInputError(f"JITI random_rate must lie in [0, 1], got {random_rate}")
+        if max_overrides is not None and int(max_overrides) < 0:
+            raise UserInputError(f"JITI max_overrides must be >= 0 (or None for no limit), got {max_overrides}")
         self.policy = as_policy(policy, noise_scale=noise_scale, seed=seed)
         self.chunk = chunk_of(self.policy)
         if critic is not None:
@@ -252,12 +259,15 @@ class JITI:
         self.trust_radius = None if trust_radius is None else float(trust_radius)
         self.random_rate = float(random_rate)
         self.min_gain = float(min_gain)
+        # mode "jiti": after this many overrides in an episode, JITI stops intervening (None: no limit)
+        self.max_overrides = None if max_overrides is None else int(max_overrides)
         # mode "random": intervene at the decisions taken at these steps, not at a random rate (settable per episode)
         self.random_steps = None if random_steps is None else frozenset(int(t) for t in random_steps)
         self._rng = _choice_rng(seed)  # mode "random": when and what to choose
         self._scores: deque[float] = deque(maxlen=self.window)
         self._queue: deque[np.ndarray] = deque()
         self._step = 0
+        self._overrides = 0
         self.log: list[Decision] = []
 
     def config(self) -> dict[str, Any]:
@@ -273,6 +283,7 @@ class JITI:
             "random_rate": self.random_rate,
             "min_gain": self.min_gain,
             "trigger": self.trigger,
+            "max_overrides": self.max_overrides,
             "chunk": self.chunk,
             "policy_adapter": type(self.policy).__name__,
         }
@@ -291,6 +302,7 @@ class JITI:
         self._scores.clear()
         self._queue.clear()
         self._step = 0
+        self._overrides = 0
         self.log = []
 
     def __call__(self, obs: Observation) -> np.ndarray:
@@ -318,7 +330,7 @@ class JITI:
             if mean is not None:
                 dq = abs(q - mean)
         critical = dq is not None and (dq > tau if self.trigger == "deviation" else mean - q > tau)
-        intervene = (self.mode == "jiti" and critical) or \
+        intervene = (self.mode == "jiti" and critical and not self._budget_spent()) or \
             (self.mode == "random" and self._explores(step))
         if intervene:
             candidates = self._candidates(obs, plan)
@@ -330,6 +342,7 @@ class JITI:
             scores_c = None if self.critic is None else member_scores.mean(axis=0)
             chosen = self._random_choice(distance) if self.mode == "random" else choose_candidate(member_scores, distance, self.trust_radius, self.min_gain)
             executed = candidates[chosen]
+            self._overrides += chosen != 0
             chosen_q = None if scores_c is None else float(scores_c[chosen])
         if chosen_q is not None:
             self._scores.append(chosen_q)
@@ -342,6 +355,10 @@ class JITI:
             )
         )
         return self._execute(executed)
+
+    def _budget_spent(self) -> bool:
+        """Whether this episode's overrides reached `max_overrides`."""
+        return self.max_overrides is not None and self.overrides >= self.max_overrides
 
     def _explores(self, step: int) -> bool:
         """Mode "random": whether the decision at `step` gets a random candidate."""
@@ -375,6 +392,11 @@ class JITI:
     def interventions(self) -> int:
         """Decisions of the current episode at which candidates were drawn and re-ranked."""
         return sum(d.intervened for d in self.log)
+
+    @property
+    def overrides(self) -> int:
+        """Decisions of the current episode at which an alternative replaced the base plan."""
+        return self._overrides
 
     def trace(self) -> dict[str, list]:
         """The episode's decision log as columns (JSON-ready), one list per `Decision` field."""

@@ -292,6 +292,23 @@ def test_an_ensemble_overrides_only_with_every_members_agreement_and_picks_the_b
     assert [d.chosen for d in jiti.log] == [0] * 3 and jiti.log[0].candidate_q == [5.0] * 16
 
 
+def test_max_overrides_stops_intervening_once_the_episode_spent_its_budget():
+    """Only executed alternatives count: interventions that keep the base plan do not spend the budget,
+    and a new episode starts with a full one."""
+    climb = [float(t) for t in range(12)] + [3.0]  # the deviation trigger fires at decisions 4 to 12
+    capped = JITI(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0, max_overrides=3)
+    for _ in range(2):
+        rollout(capped, 13)
+        assert [d.step for d in capped.log if d.intervened] == [4, 5, 6] and capped.overrides == 3
+        assert all(d.chosen == 15 for d in capped.log if d.intervened)
+    kept = JITI(SamplingPolicy(), TiltedCritic(climb, -1.0), window=4, threshold=1.0, max_overrides=3)
+    rollout(kept, 13)  # every candidate scores below the base plan: it stays, and nothing is spent
+    assert [d.step for d in kept.log if d.intervened] == list(range(4, 13)) and kept.overrides == 0
+    assert capped.config()["max_overrides"] == 3
+    with pytest.raises(UserInputError, match="max_overrides"):
+        JITI(SamplingPolicy(), ScriptedCritic([]), max_overrides=-1)
+
+
 def test_an_ensemble_refuses_a_single_member_or_mixed_chunk_lengths():
     from critics import CriticEnsemble
 
