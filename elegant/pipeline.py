@@ -56,6 +56,7 @@ class ChainConfig:
     `critic_members`: with more than one, that many critics are trained, member k on a bootstrap resample
     of the episodes (seed and resample `seed + k`, `train_critic`'s `bootstrap`), into `critic_1` ..
     `critic_K`, and JITI judges with them as a `critics.CriticEnsemble` (every member must prefer an override).
+    `max_overrides`: JITI's budget of executed alternatives per episode (None: no limit).
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -90,6 +91,7 @@ class ChainConfig:
     critic_explored_fraction: float = 0.0
     trigger: str | None = None
     critic_members: int = 1
+    max_overrides: int | None = None
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -134,7 +136,7 @@ class ChainConfig:
         if mode == "base":
             return None
         settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window,
-                    "trigger": self.trigger}
+                    "trigger": self.trigger, "max_overrides": self.max_overrides}
         return {k: v for k, v in settings.items() if v is not None}
 
 
@@ -171,7 +173,7 @@ QUICKSTART = ChainConfig()
 # settings a chain directory may predate
 _ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
                 "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
-                "critic_explored_fraction", "trigger", "critic_members")
+                "critic_explored_fraction", "trigger", "critic_members", "max_overrides")
 
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:
