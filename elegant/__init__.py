@@ -21,6 +21,8 @@ _LAZY = {
     "train_policy": "elegant.policies",
     "evaluate": "elegant.evaluation",
     "episode_start": "elegant.evaluation",
+    "task_gate": "elegant.gate",
+    "write_gate": "elegant.gate",
     "intervention_headroom": "elegant.headroom",
     "rescore_headroom": "elegant.headroom",
     "collect_rollouts": "elegant.rollouts",

@@ -299,6 +299,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
                    help="critical moment: |q - mean| > tau (deviation, default) or q below the mean by more than tau (drop)")
     p.add_argument("--max-overrides", type=int, help="mode jiti: stop intervening after this many overrides in an episode (default: no limit)")
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
+    p.add_argument("--gate", help="mode jiti: a file from `elegant gate`; JITI runs only on the tasks it enables, the others as the base policy")
 
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
@@ -308,8 +309,22 @@ def _eval(args: argparse.Namespace) -> dict:
     jiti_kwargs = {k: getattr(args, k) for k in JITI_SETTINGS if getattr(args, k, None) is not None}
     summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
                        seed=args.seed, out=args.out, resume=args.resume, perturbation=args.perturbation,
-                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"))
+                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"),
+                       gate=args.gate)
     return {k: v for k, v in summary.items() if k != "per_task"}
+
+
+def _gate_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("base_run", help="a base-mode run on validation starts (e.g. --init-states 0-24)")
+    p.add_argument("jiti_run", help="the JITI run to judge, on the same starts")
+    p.add_argument("--out", required=True, help="gate file (JSON) for elegant eval --gate")
+
+
+@command("gate", "enable JITI per task where, on validation starts, it made more episodes elegant than it spoiled")(_gate_args)
+def _gate(args: argparse.Namespace) -> dict:
+    from elegant.gate import write_gate
+
+    return write_gate(args.base_run, args.jiti_run, args.out)
 
 
 def _lifelong_args(p: argparse.ArgumentParser) -> None:

@@ -167,10 +167,12 @@ def evaluate(
     max_steps: int | None = None,
     obs: str = "lowdim",
     init_states: Sequence[int] | None = None,
+    gate: str | os.PathLike | None = None,
 ) -> dict[str, Any]:
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
     object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
-    task, starting from `init_states` only (None: all shipped init states; see `episode_start`).
+    task, starting from `init_states` only (None: all shipped init states; see `episode_start`). `gate`:
+    a file from `elegant gate` (`elegant.gate`); the tasks it does not enable run in mode "base".
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,
@@ -190,6 +192,14 @@ def evaluate(
     for spec in specs:
         check_init_states(init_states, spec.n_init_states)
     indices = list(dict.fromkeys(spec.index for spec in specs))
+    enabled = None
+    if gate is not None:
+        from elegant.gate import read_gate
+
+        if mode != "jiti":
+            raise UserInputError(f"--gate chooses the tasks JITI runs on; mode {mode!r} has none to choose")
+        chosen = None if init_states is None else sorted({int(i) for i in init_states})
+        enabled = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen)
     agent = JITI(open_policy(policy), open_critic(critic), mode=mode, seed=seed, **settings)
     config = {
         "suite": suite,
@@ -204,6 +214,7 @@ def evaluate(
         "max_steps": max_steps,
         "obs": obs,
         "init_states": None if init_states is None else sorted({int(i) for i in init_states}),
+        **({} if enabled is None else {"gate": {"file": os.path.abspath(gate), "enabled": enabled}}),
     }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -215,6 +226,7 @@ def evaluate(
               desc=f"eval {mode}", unit="ep", disable=not progress) as bar:
         for index in indices:
             if todo[index]:
+                agent.mode = mode if enabled is None or enabled[task_key(suite, index)] else "base"
                 _run_task(suite, index, todo[index], agent, ITCMonitor, config, log, out, bar)
     records = run_records(log.records, config)
     summary = {"config": config, **summarize(records)}

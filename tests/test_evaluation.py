@@ -173,3 +173,31 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     assert calls[-1]["jiti_kwargs"] == {name: value for name, (_, _, value) in flags.items()}
     assert main(common + ["--min-gain", "0.05"]) == 0
     assert calls[-1]["jiti_kwargs"] == {"min_gain": 0.05}
+
+
+def test_a_gate_validated_on_other_starts_runs_disabled_tasks_as_the_base_policy(tmp_path):
+    """`elegant gate` pairs a base and a JITI run on validation starts; `evaluate(gate=...)` then runs a
+    task it disables exactly as mode base does, one it enables as JITI, and refuses the validation starts."""
+    from elegant.gate import write_gate
+
+    run(tmp_path / "val_base", mode="base", init_states=[0, 1])
+    run(tmp_path / "val_jiti", init_states=[0, 1])
+    gate_path = tmp_path / "gate.json"
+    gate = write_gate(tmp_path / "val_base", tmp_path / "val_jiti", gate_path)
+    base_val, jiti_val = records(tmp_path / "val_base"), records(tmp_path / "val_jiti")
+    row = gate["tasks"][f"{SUITE}/{TASK}"]
+    assert row["episodes"] == 2 and gate["init_states"] == [0, 1]
+    assert row["gained"] == sum(j["elegant"] and not b["elegant"] for b, j in zip(base_val, jiti_val))
+    assert row["enabled"] == (row["gained"] > row["lost"])
+    for enabled in (False, True):
+        gate["tasks"][f"{SUITE}/{TASK}"]["enabled"] = enabled
+        gate_path.write_text(json.dumps(gate))
+        run(tmp_path / f"gated_{enabled}", init_states=[2, 3], gate=str(gate_path))
+    run(tmp_path / "base_23", mode="base", init_states=[2, 3])
+    outcome = ("init_index", "success", "elegant", "violated", "steps", "interventions")
+    off, on, base = (records(tmp_path / name) for name in ("gated_False", "gated_True", "base_23"))
+    assert [[r[k] for k in outcome] for r in off] == [[r[k] for k in outcome] for r in base]
+    assert all(r["interventions"] == 0 for r in off) and sum(r["interventions"] for r in on) > 0
+    assert json.loads((tmp_path / "gated_False" / "config.json").read_text())["gate"]["enabled"] == {f"{SUITE}/{TASK}": False}
+    with pytest.raises(UserInputError, match="overlaps the evaluation's starts \\(\\[1\\]\\)"):
+        run(tmp_path / "overlap", init_states=[1, 2], gate=str(gate_path))
