@@ -9,7 +9,7 @@ in every mode. The chain directory resumes (rerun the same command after an inte
         [--episodes 50] [--critic-steps 20000] [--policy-epochs 50] [--tasks 0,1] [--threshold 2 --threshold-mode std]
         [--chunk 8 --critic-rollouts 50 --critic-backup dataset] [--rollout-explore-at 8,16,24]
         [--critic-reward elegant --critic-value-loss bce --critic-hidden 64,64 --critic-weight-decay 0.1
-         --critic-mc-weight 10 --critic-explored-fraction 0.5] [--critic-members 3] [--max-overrides 3]
+         --critic-mc-weight 10 --critic-explored-fraction 0.5] [--critic-members 3] [--max-overrides 3] [--jiti-gate]
 
 Prints the table per suite, then one JSON object on its last line.
 """
@@ -72,6 +72,8 @@ def main() -> None:
     parser.add_argument("--critic-value-loss", default="mse", help="mse, or bce (with --critic-reward elegant)")
     parser.add_argument("--critic-explored-fraction", type=float, default=0.0, help="share of each batch from the rollouts' explored decisions")
     parser.add_argument("--max-overrides", type=int, help="JITI's budget of executed alternatives per episode (default: no limit)")
+    parser.add_argument("--jiti-gate", action="store_true",
+                        help="validate base and JITI on the rollouts' starts first; evaluate JITI only on the tasks where it helped there")
     parser.add_argument("--critic-members", type=int, default=1,
                         help="critics trained on bootstrap resamples of the data; JITI overrides only when all prefer it")
     args = parser.parse_args()
@@ -83,7 +85,7 @@ def main() -> None:
         rollout_explore_at=tuple(parse_indices(args.rollout_explore_at, "--rollout-explore-at")) if args.rollout_explore_at else None,
         critic_hidden=tuple(parse_indices(args.critic_hidden, "--critic-hidden")), critic_weight_decay=args.critic_weight_decay,
         critic_mc_weight=args.critic_mc_weight, critic_value_loss=args.critic_value_loss, critic_explored_fraction=args.critic_explored_fraction,
-        critic_members=args.critic_members, max_overrides=args.max_overrides,
+        critic_members=args.critic_members, max_overrides=args.max_overrides, jiti_gate=args.jiti_gate,
     )
     result = run_chain(args.out, config)
     table = verdicts(result)

@@ -57,6 +57,9 @@ class ChainConfig:
     of the episodes (seed and resample `seed + k`, `train_critic`'s `bootstrap`), into `critic_1` ..
     `critic_K`, and JITI judges with them as a `critics.CriticEnsemble` (every member must prefer an override).
     `max_overrides`: JITI's budget of executed alternatives per episode (None: no limit).
+    `jiti_gate`: before the evaluation, the base policy and JITI each run `episodes` per task from the
+    rollouts' starts (validation, never the evaluated ones), and JITI is then evaluated only on the tasks
+    where it made more episodes elegant than it spoiled there (`elegant.gate`); needs `critic_rollouts`.
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -92,6 +95,7 @@ class ChainConfig:
     trigger: str | None = None
     critic_members: int = 1
     max_overrides: int | None = None
+    jiti_gate: bool = False
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -118,6 +122,8 @@ class ChainConfig:
             raise unknown_choice("chain trigger", self.trigger, TRIGGERS)
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
+        if self.jiti_gate and not self.critic_rollouts:
+            raise UserInputError("chain jiti_gate validates on the rollouts' starts, apart from the evaluated ones: give critic_rollouts > 0")
         from critics import TrainConfig  # torch loads only when a chain runs
 
         try:  # the critic's settings, checked by the critic's own rules before hours of demos, not after
@@ -173,7 +179,7 @@ QUICKSTART = ChainConfig()
 # settings a chain directory may predate
 _ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
                 "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
-                "critic_explored_fraction", "trigger", "critic_members", "max_overrides")
+                "critic_explored_fraction", "trigger", "critic_members", "max_overrides", "jiti_gate")
 
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:
@@ -220,6 +226,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     from annotations.collect import collect_demos
     from critics import train_critic
     from elegant.evaluation import evaluate
+    from elegant.gate import write_gate
     from elegant.policies import train_policy
     from elegant.report import compare_runs
     from elegant.rollouts import collect_rollouts
@@ -277,14 +284,27 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
             which = f" member {k + 1} of {len(members)} (bootstrap resample {member['bootstrap']})" if member else ""
             say(f"train critic{which}: Cal-QL, {cfg.critic_steps} steps")
             train_critic(critic_data, critic_dir, **{**cfg.critic_settings(), **member}, resume=True, progress=progress)
+    critic = ",".join(critic_dirs) if needs_critic else None
+    gates = {s: None for s in cfg.suites}
+    if cfg.jiti_gate and "jiti" in cfg.modes:
+        for suite in cfg.suites:
+            say(f"validate base and jiti on {suite}'s rollout starts: {cfg.episodes} episodes per task each")
+            validation = {}
+            for mode in ("base", "jiti"):
+                validation[mode] = os.path.join(out, f"validate_{mode}_{suite}")
+                evaluate(suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes, seed=cfg.seed, out=validation[mode],
+                         resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode), max_steps=cfg.max_steps,
+                         init_states=rollout_starts)
+            gates[suite] = os.path.join(out, f"gate_{suite}.json")
+            write_gate(validation["base"], validation["jiti"], gates[suite])
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:
             say(f"evaluate {mode} on {suite}: {cfg.episodes} episodes per task")
             summaries[mode][suite] = evaluate(
-                suite, tasks, policy_dir, ",".join(critic_dirs) if needs_critic else None, mode=mode, episodes=cfg.episodes,
+                suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes,
                 seed=cfg.seed, out=runs[mode][suite], resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode),
-                max_steps=cfg.max_steps, init_states=eval_starts,
+                max_steps=cfg.max_steps, init_states=eval_starts, gate=gates[suite] if mode == "jiti" else None,
             )
     report_dir = os.path.join(out, "report")
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)

@@ -74,12 +74,14 @@ def test_a_base_only_chain_trains_no_critic(chain, tmp_path):
 def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_starts(chain, tmp_path):
     """With `critic_rollouts` the trained policy's episodes, branching at one of `rollout_explore_at`, are
     recorded from the first half of the init states, annotated and added to the critic's data, trained
-    with the chain's critic settings; every mode is then evaluated from the second half only."""
+    with the chain's critic settings; every mode is then evaluated from the second half only. With
+    `jiti_gate` base and JITI are first validated on the rollouts' half, and the JITI evaluation is gated."""
     import h5py
 
     copy_data_and_policy(chain[0], tmp_path)
     cfg = replace(TINY, critic_rollouts=2, rollout_explore_at=(4, 8), critic_backup="dataset", trust_radius=None, critic_reward="elegant",
-                  critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5, trigger="drop")
+                  critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5, trigger="drop",
+                  jiti_gate=True)
     result = run_chain(str(tmp_path), cfg, progress=False)
     rollouts = str(tmp_path / "rollouts_libero_object.hdf5")
     training = json.load(open(tmp_path / "critic" / "critic.json"))["training"]
@@ -99,7 +101,15 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     for mode in ("base", "jiti"):
         config = json.load(open(os.path.join(result["runs"][mode]["libero_object"], "config.json")))
         assert config["init_states"] == list(range(25, 50))
-    assert json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))["jiti"]["trigger"] == "drop"
+    jiti_config = json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))
+    assert jiti_config["jiti"]["trigger"] == "drop"
+    gate = json.load(open(tmp_path / "gate_libero_object.json"))
+    assert gate["init_states"] == list(range(25)) and gate["tasks"]["libero_object/0"]["episodes"] == 1
+    assert jiti_config["gate"]["enabled"] == {"libero_object/0": gate["tasks"]["libero_object/0"]["enabled"]}
+    for mode in ("base", "jiti"):
+        assert json.load(open(tmp_path / f"validate_{mode}_libero_object" / "config.json"))["init_states"] == list(range(25))
+    with pytest.raises(UserInputError, match="jiti_gate validates on the rollouts' starts"):
+        run_chain(str(tmp_path / "other"), replace(TINY, jiti_gate=True), progress=False)
     with pytest.raises(UserInputError, match="chain trigger 'rise'"):
         run_chain(str(tmp_path / "other"), replace(cfg, trigger="rise"), progress=False)
     with pytest.raises(UserInputError, match="chain critic settings: unknown train-critic backup .mine."):
