@@ -39,6 +39,8 @@ def read_json_file(path: str | os.PathLike, what: str) -> Any:
     try:
         with open(path, encoding="utf-8") as f:
             return json.load(f)
+    except FileNotFoundError:
+        raise UserInputError(f"{os.fspath(path)}: no such {what} file") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UserInputError(f"{os.fspath(path)}: corrupt {what} ({exc.__class__.__name__})") from None
 
