@@ -49,6 +49,8 @@ def test_refusals_name_the_file_and_the_field(tmp_path):
         read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0", "libero_goal/3"], [30])
     with pytest.raises(UserInputError, match="field 'suite' is 'libero_goal' but the evaluation is on 'libero_object'"):
         read_gate(tmp_path / "gate.json", "libero_object", ["libero_object/0"], [30])
+    with pytest.raises(UserInputError, match="missing.json: no such gate file"):
+        read_gate(tmp_path / "missing.json", "libero_goal", ["libero_goal/0"], [30])
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(UserInputError, match="bad.json: field 'format'"):
         read_gate(tmp_path / "bad.json", "libero_goal", ["libero_goal/0"], [30])
