@@ -2,7 +2,7 @@
 
 Data (`load_transitions`, `make_replay_buffer`) -> loss (`CalQLLoss`) -> training (`train_critic`) ->
 artifact (`load` -> `Critic`, whose `bind(metadata)` and `q(state, actions)` JITI calls; `load_ensemble` ->
-`CriticEnsemble`, several seeds scored together) -> held-out
+`CriticEnsemble`, critics of bootstrap resamples scored together) -> held-out
 quality (`evaluate_critic`; `continuation_pairs` + `pair_preference`: clean vs knob continuations).
 """
 from critics.artifact import Critic, load, save_critic

@@ -141,7 +141,7 @@ def _run_episode(env, agent: JITI, monitor, init_index: int, reset_seed: int) ->
         "elegant": bool(verdict.elegant),
         "violated": sorted(verdict.violated),
         "interventions": agent.interventions,
-        "overrides": sum(d.chosen != 0 for d in agent.log),
+        "overrides": agent.overrides,
         "steps": steps,
         "decision_time": float(sum(d.time for d in agent.log) / steps),  # per step: a chunked policy decides every few steps
         "env_step_time": env_time / steps,

@@ -250,6 +250,8 @@ class JITI:
         if critic is not None:
             check_critic_chunk(critic, self.chunk)
         self.critic = critic
+        # an ensemble (`critics.CriticEnsemble`) scores with every member; a plain critic is one member
+        self._member_q = getattr(critic, "member_q", None)
         self.window = int(window)
         self.threshold = float(threshold)
         self.threshold_mode = threshold_mode
@@ -382,11 +384,10 @@ class JITI:
     def _score(self, state: np.ndarray, plans: np.ndarray) -> np.ndarray:
         """(members, n) scores of the plans: one row for a plain critic, one per member for an ensemble."""
         flat = plans.reshape(len(plans), -1)
-        member_q = getattr(self.critic, "member_q", None)
-        if member_q is None:
+        if self._member_q is None:
             scores = np.asarray(self.critic.q(state, flat), dtype=np.float64).reshape(1, -1)
         else:
-            scores = np.asarray(member_q(state, flat), dtype=np.float64)
+            scores = np.asarray(self._member_q(state, flat), dtype=np.float64)
         if scores.ndim != 2 or scores.shape[1] != len(plans):
             raise ValueError(f"the critic returned scores of shape {scores.shape} for {len(plans)} actions")
         return scores
