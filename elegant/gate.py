@@ -10,7 +10,7 @@ enable JITI on a task only if it made more episodes elegant than it spoiled ther
 --gate gate.json` then runs the other tasks as the base policy, and refuses a gate validated on any of
 the evaluation's own starts.
 
-Measured so far (README, session 25): 50 validation episodes per task from the critic's rollout starts
+Measured so far (benchmarks/RESULTS.md, session 25): 50 validation episodes per task from the critic's rollout starts
 did not predict the held-out effect on libero_goal or libero_object (they would have switched JITI off
 on libero_goal/4, +14 ESR held out), so a gate needs more validation episodes than that.
 """

@@ -36,7 +36,7 @@ Choices made here, each for a reason:
   scores it higher (by `min_gain`): one critic's ranking of alternatives on new starts is barely better
   than chance, and where critics trained on different resamples disagree the data did not decide. On
   libero_goal/1 and /4 three bootstrap critics overrode a third less often than one and spoiled no
-  episode (README, session 25).
+  episode (benchmarks/RESULTS.md, session 25).
 - `max_overrides` caps the alternatives executed per episode. Overrides compound: once one has moved the
   robot off the policy's course, the critic can score every later base plan far below the alternatives
   and override again and again (on libero_goal/0 the episodes JITI spoiled had 5 to 19 overrides; those

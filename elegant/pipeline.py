@@ -50,7 +50,7 @@ class ChainConfig:
     "policy" (Cal-QL's) or "dataset" (in-sample; with the rollouts it values the alternatives they tried).
     `critic_hidden`, `critic_weight_decay`, `critic_mc_weight`, `critic_value_loss` and
     `critic_explored_fraction` are `train_critic`'s `hidden`, `weight_decay`, `mc_weight`, `value_loss`
-    and `explored_fraction`: the small regularised outcome classifier of issue 7 (README, `elegant eval`)
+    and `explored_fraction`: the small regularised outcome classifier of issue 7 (README, `elegant train-critic`)
     is `critic_reward="elegant"`, `critic_value_loss="bce"`, `critic_hidden=(64, 64)`,
     `critic_weight_decay=0.1`, `critic_mc_weight=10`, `critic_explored_fraction=0.5`.
     `critic_members`: with more than one, that many critics are trained, member k on a bootstrap resample
