@@ -9,7 +9,7 @@ in every mode. The chain directory resumes (rerun the same command after an inte
         [--episodes 50] [--critic-steps 20000] [--policy-epochs 50] [--tasks 0,1] [--threshold 2 --threshold-mode std]
         [--chunk 8 --critic-rollouts 50 --critic-backup dataset] [--rollout-explore-at 8,16,24]
         [--critic-reward elegant --critic-value-loss bce --critic-hidden 64,64 --critic-weight-decay 0.1
-         --critic-mc-weight 10 --critic-explored-fraction 0.5] [--critic-members 3] [--max-overrides 3] [--jiti-gate]
+         --critic-mc-weight 10 --critic-explored-fraction 0.5] [--critic-members 3] [--max-overrides 3] [--warmup steer] [--jiti-gate]
 
 Prints the table per suite, then one JSON object on its last line.
 """
@@ -19,7 +19,7 @@ import argparse
 import json
 
 from elegant.cli import parse_indices
-from elegant.jiti import TRIGGERS
+from elegant.jiti import TRIGGERS, WARMUPS
 from elegant.pipeline import add_chain_arguments, chain_config, run_chain
 
 TARGETS = {"base_success": 0.70, "esr_gain": 0.15, "max_success_drop": 0.02, "max_intervention_ratio": 0.40}
@@ -72,6 +72,7 @@ def main() -> None:
     parser.add_argument("--critic-value-loss", default="mse", help="mse, or bce (with --critic-reward elegant)")
     parser.add_argument("--critic-explored-fraction", type=float, default=0.0, help="share of each batch from the rollouts' explored decisions")
     parser.add_argument("--max-overrides", type=int, help="JITI's budget of executed alternatives per episode (default: no limit)")
+    parser.add_argument("--warmup", choices=WARMUPS, help="what JITI's first --window decisions execute: base (default) or steer (the critic's choice)")
     parser.add_argument("--jiti-gate", action="store_true",
                         help="validate base and JITI on the rollouts' starts first; evaluate JITI only on the tasks where it helped there")
     parser.add_argument("--critic-members", type=int, default=1,
@@ -85,7 +86,7 @@ def main() -> None:
         rollout_explore_at=tuple(parse_indices(args.rollout_explore_at, "--rollout-explore-at")) if args.rollout_explore_at else None,
         critic_hidden=tuple(parse_indices(args.critic_hidden, "--critic-hidden")), critic_weight_decay=args.critic_weight_decay,
         critic_mc_weight=args.critic_mc_weight, critic_value_loss=args.critic_value_loss, critic_explored_fraction=args.critic_explored_fraction,
-        critic_members=args.critic_members, max_overrides=args.max_overrides, jiti_gate=args.jiti_gate,
+        critic_members=args.critic_members, max_overrides=args.max_overrides, warmup=args.warmup, jiti_gate=args.jiti_gate,
     )
     result = run_chain(args.out, config)
     table = verdicts(result)

@@ -273,7 +273,7 @@ def _rank_check(args: argparse.Namespace) -> dict:
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:
-    from elegant.jiti import MODES, THRESHOLD_MODES, TRIGGERS  # light: no torch
+    from elegant.jiti import MODES, THRESHOLD_MODES, TRIGGERS, WARMUPS  # light: no torch
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
@@ -298,6 +298,9 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trigger", choices=TRIGGERS,
                    help="critical moment: |q - mean| > tau (deviation, default) or q below the mean by more than tau (drop)")
     p.add_argument("--max-overrides", type=int, help="mode jiti: stop intervening after this many overrides in an episode (default: no limit)")
+    p.add_argument("--warmup", choices=WARMUPS,
+                   help="mode jiti: the first --window decisions, before a fluctuation can be measured, execute the base plan "
+                        "(base, default) or the critic's choice (steer)")
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
     p.add_argument("--gate", help="mode jiti: a file from `elegant gate`; JITI runs only on the tasks it enables, the others as the base policy")
 

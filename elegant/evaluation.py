@@ -36,7 +36,7 @@ from elegant.metrics import summarize
 from elegant.report import write_run_report
 
 JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius", "random_rate", "min_gain", "trigger",
-                 "max_overrides")
+                 "max_overrides", "warmup")
 
 
 def episode_start(seed: int, suite: str, task_index: int, episode: int, n_init_states: int,
@@ -107,9 +107,9 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
             raise UserInputError(f"{out} already holds a run (config.json); resume it (--resume) or choose another directory")
         # runs from before chunking (one action per decision), before mode "random" (so its rate had no
         # effect), before a subset of init states could be chosen, before the minimum gain (0: none) and
-        # before the one-sided trigger and the override budget
+        # before the one-sided trigger, the override budget and the steered warm-up
         added = {"init_states": None, "jiti": {"chunk": 1, "random_rate": config["jiti"]["random_rate"], "min_gain": 0.0, "trigger": "deviation",
-                                               "max_overrides": None}}
+                                               "max_overrides": None, "warmup": "base"}}
         changed = changed_fields(read_json_file(path, "run config"), config, ignore=("episodes",), added=added)
         if changed:
             key, before, now = changed[0]

@@ -57,6 +57,7 @@ class ChainConfig:
     of the episodes (seed and resample `seed + k`, `train_critic`'s `bootstrap`), into `critic_1` ..
     `critic_K`, and JITI judges with them as a `critics.CriticEnsemble` (every member must prefer an override).
     `max_overrides`: JITI's budget of executed alternatives per episode (None: no limit).
+    `warmup`: what JITI's first `window` decisions execute, "base" (the base plan) or "steer" (`JITI`'s `warmup`).
     `jiti_gate`: before the evaluation, the base policy and JITI each run `episodes` per task from the
     rollouts' starts (validation, never the evaluated ones), and JITI is then evaluated only on the tasks
     where it made more episodes elegant than it spoiled there (`elegant.gate`); needs `critic_rollouts`.
@@ -95,6 +96,7 @@ class ChainConfig:
     trigger: str | None = None
     critic_members: int = 1
     max_overrides: int | None = None
+    warmup: str | None = None
     jiti_gate: bool = False
 
     def validate(self) -> None:
@@ -116,10 +118,12 @@ class ChainConfig:
             raise UserInputError("chain suites: give at least one suite")
         if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
             raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
-        from elegant.jiti import TRIGGERS
+        from elegant.jiti import TRIGGERS, WARMUPS
 
         if self.trigger is not None and self.trigger not in TRIGGERS:
             raise unknown_choice("chain trigger", self.trigger, TRIGGERS)
+        if self.warmup is not None and self.warmup not in WARMUPS:
+            raise unknown_choice("chain warmup", self.warmup, WARMUPS)
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         if self.jiti_gate and not self.critic_rollouts:
@@ -142,7 +146,7 @@ class ChainConfig:
         if mode == "base":
             return None
         settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window,
-                    "trigger": self.trigger, "max_overrides": self.max_overrides}
+                    "trigger": self.trigger, "max_overrides": self.max_overrides, "warmup": self.warmup}
         return {k: v for k, v in settings.items() if v is not None}
 
 
@@ -179,7 +183,7 @@ QUICKSTART = ChainConfig()
 # settings a chain directory may predate
 _ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
                 "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
-                "critic_explored_fraction", "trigger", "critic_members", "max_overrides", "jiti_gate")
+                "critic_explored_fraction", "trigger", "critic_members", "max_overrides", "warmup", "jiti_gate")
 
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:

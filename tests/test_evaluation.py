@@ -166,7 +166,8 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     flags = {"window": ("--window", "7", 7), "threshold": ("--threshold", "1.5", 1.5), "threshold_mode": ("--threshold-mode", "std", "std"),
              "n_candidates": ("--candidates", "8", 8), "noise_scale": ("--noise-scale", "0.2", 0.2),
              "trust_radius": ("--trust-radius", "0.4", 0.4), "random_rate": ("--random-rate", "0.3", 0.3),
-             "min_gain": ("--min-gain", "0.05", 0.05), "trigger": ("--trigger", "drop", "drop"), "max_overrides": ("--max-overrides", "3", 3)}
+             "min_gain": ("--min-gain", "0.05", 0.05), "trigger": ("--trigger", "drop", "drop"), "max_overrides": ("--max-overrides", "3", 3),
+             "warmup": ("--warmup", "steer", "steer")}
     assert set(flags) == set(JITI_SETTINGS)
     common = ["eval", "--suite", SUITE, "--policy", "p", "--out", str(tmp_path / "run")]
     assert main(common + [a for flag, text, _ in flags.values() for a in (flag, text)]) == 0

@@ -423,3 +423,28 @@ def test_mode_random_with_random_steps_intervenes_exactly_there():
     jiti.random_steps = {6}  # rollouts choose the branch step per episode
     rollout(jiti, 12)
     assert [d.step for d in jiti.log if d.intervened] == [6]
+
+
+def test_a_steered_warmup_reselects_the_decisions_before_the_window_is_full_and_then_only_critical_ones():
+    """warmup="steer": the first `window` decisions choose like `always` (no fluctuation can be measured
+    yet), then the trigger alone decides; the default "base" executes the base plan while warming up.
+    The chosen candidates' scores fill the window, so the reference is the steered trajectory's level."""
+    q = [5.0] * 20
+    q[12] = 1.0  # a drop: critical at decision 12 either way
+    steered = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop", warmup="steer")
+    actions = rollout(steered, 20)
+    assert [d.step for d in steered.log if d.intervened] == [0, 1, 2, 3, 12]
+    assert [d.chosen for d in steered.log[:4]] == [15] * 4 and actions[0][0] == pytest.approx(0.15)
+    assert steered.log[4].mean == pytest.approx(5.15) and steered.config()["warmup"] == "steer"
+    plain = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop")
+    rollout(plain, 20)
+    assert [d.step for d in plain.log if d.intervened] == [12] and plain.config()["warmup"] == "base"
+    # the override budget bounds the steered warm-up too, and modes other than jiti ignore the setting
+    capped = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop", warmup="steer", max_overrides=2)
+    rollout(capped, 20)
+    assert [d.step for d in capped.log if d.intervened] == [0, 1]
+    base = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, mode="base", warmup="steer")
+    rollout(base, 20)
+    assert base.interventions == 0
+    with pytest.raises(UserInputError, match="warmup"):
+        JITI(SamplingPolicy(), ScriptedCritic([]), warmup="always")
