@@ -296,7 +296,8 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--random-rate", type=float, help="mode random: the fraction of decisions given a random eligible candidate")
     p.add_argument("--min-gain", type=float, help="override the base action only when the best candidate's Q beats its Q by more than this")
     p.add_argument("--trigger", choices=TRIGGERS,
-                   help="critical moment: |q - mean| > tau (deviation, default) or q below the mean by more than tau (drop)")
+                   help="critical moment: |q - mean| > tau (deviation, default), q below the mean by more than tau (drop), "
+                        "or none (with --warmup steer: only the warm-up is steered)")
     p.add_argument("--max-overrides", type=int, help="mode jiti: stop intervening after this many overrides in an episode (default: no limit)")
     p.add_argument("--warmup", choices=WARMUPS,
                    help="mode jiti: the first --window decisions, before a fluctuation can be measured, execute the base plan "

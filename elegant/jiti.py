@@ -84,7 +84,7 @@ from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Obser
 
 MODES = ("jiti", "always", "base", "random")
 THRESHOLD_MODES = ("absolute", "std")
-TRIGGERS = ("deviation", "drop")
+TRIGGERS = ("deviation", "drop", "none")
 WARMUPS = ("base", "steer")
 DEFAULT_THRESHOLD = 1.0
 DEFAULT_NOISE_SCALE = 0.1
@@ -239,6 +239,8 @@ class JITI:
             raise unknown_choice("JITI trigger", trigger, TRIGGERS)
         if warmup not in WARMUPS:
             raise unknown_choice("JITI warmup", warmup, WARMUPS)
+        if mode == "jiti" and trigger == "none" and warmup != "steer":
+            raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
         if int(window) < 1:
             raise UserInputError(f"JITI window must be >= 1, got {window}")
         if int(n_candidates) < 2:
@@ -347,7 +349,7 @@ class JITI:
             q = float(member_scores[:, 0].mean())
             if mean is not None:
                 dq = abs(q - mean)
-        critical = dq is not None and (dq > tau if self.trigger == "deviation" else mean - q > tau)
+        critical = dq is not None and self._critical(q, mean, dq, tau)
         steered_warmup = self.warmup == "steer" and mean is None
         intervene = (self.mode == "jiti" and (critical or steered_warmup) and not self._budget_spent()) or \
             (self.mode == "random" and self._explores(step))
@@ -374,6 +376,14 @@ class JITI:
             )
         )
         return self._execute(executed)
+
+    def _critical(self, q: float, mean: float, dq: float, tau: float) -> bool:
+        """Whether a decision scored `q`, with a full window of mean `mean`, is a critical moment."""
+        if self.trigger == "deviation":
+            return dq > tau
+        if self.trigger == "drop":
+            return mean - q > tau
+        return False  # "none": only a steered warm-up intervenes
 
     def _budget_spent(self) -> bool:
         """Whether this episode's overrides reached `max_overrides`."""

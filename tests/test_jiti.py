@@ -448,3 +448,15 @@ def test_a_steered_warmup_reselects_the_decisions_before_the_window_is_full_and_
     assert base.interventions == 0
     with pytest.raises(UserInputError, match="warmup"):
         JITI(SamplingPolicy(), ScriptedCritic([]), warmup="always")
+
+
+def test_trigger_none_steers_only_the_warmup_and_refuses_to_run_as_a_silent_base_policy():
+    q = [5.0] * 20
+    q[12] = -50.0  # a drop any threshold would call critical
+    warm_only = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="none", warmup="steer")
+    rollout(warm_only, 20)
+    assert [d.step for d in warm_only.log if d.intervened] == [0, 1, 2, 3]
+    assert warm_only.log[12].q == pytest.approx(-50.0) and warm_only.log[12].chosen == 0
+    with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):
+        JITI(SamplingPolicy(), ScriptedCritic(q), trigger="none")
+    JITI(SamplingPolicy(), ScriptedCritic(q), trigger="none", mode="always")  # other modes ignore the trigger
