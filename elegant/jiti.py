@@ -14,9 +14,10 @@ Choices made here, each for a reason:
   `warmup="steer"` JITI re-selects them as mode "always" does. The start of an episode is a critical
   moment that no fluctuation can reveal: the policy commits to its approach and grasp there, before
   the critic has a reference. On libero_object the base policy's commonest flaw is tipping the can it
-  approaches within the first 40 steps, and with the same critics, steering the first 4 decisions plus
-  the drop trigger gained +10.8 ESR on validation starts where the trigger alone lost 1.2, at 28% of
-  `always`'s interventions (benchmarks/RESULTS.md, session 27).
+  approaches within the first 40 steps. With the same critics, the drop trigger alone cost 2.8 points
+  of ESR on held-out starts, and steering the first 4 decisions as well gained 8.8 (9.2 with
+  `trigger="none"`, the warm-up alone), more than `always`'s 6.4 at a quarter of its interventions
+  (benchmarks/RESULTS.md, session 27).
 - The window receives the score of the action actually executed (q_t, or the chosen candidate's score
   after an intervention): the window tracks the value of the trajectory being followed, so after a
   successful correction the new level becomes the reference instead of triggering again.
