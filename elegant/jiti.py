@@ -194,6 +194,13 @@ def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: flo
     return int(np.argmax(np.where(agreed, members.mean(axis=0), -np.inf)))
 
 
+def check_trigger_intervenes(trigger: str | None, warmup: str | None) -> None:
+    """Refuse JITI settings under which mode "jiti" could never intervene (it would run as a silent base
+    policy): trigger "none" without a steered warm-up. None stands for JITI's default."""
+    if trigger == "none" and warmup != "steer":
+        raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
+
+
 def _choice_rng(seed: int) -> np.random.Generator:
     """Mode "random"'s generator: a stream of its own, apart from the candidate noise the same seed drives."""
     return np.random.default_rng([int(seed), 0x6A697469])
@@ -240,8 +247,8 @@ class JITI:
             raise unknown_choice("JITI trigger", trigger, TRIGGERS)
         if warmup not in WARMUPS:
             raise unknown_choice("JITI warmup", warmup, WARMUPS)
-        if mode == "jiti" and trigger == "none" and warmup != "steer":
-            raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
+        if mode == "jiti":
+            check_trigger_intervenes(trigger, warmup)
         if int(window) < 1:
             raise UserInputError(f"JITI window must be >= 1, got {window}")
         if int(n_candidates) < 2:

@@ -118,12 +118,14 @@ class ChainConfig:
             raise UserInputError("chain suites: give at least one suite")
         if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
             raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
-        from elegant.jiti import TRIGGERS, WARMUPS
+        from elegant.jiti import TRIGGERS, WARMUPS, check_trigger_intervenes
 
         if self.trigger is not None and self.trigger not in TRIGGERS:
             raise unknown_choice("chain trigger", self.trigger, TRIGGERS)
         if self.warmup is not None and self.warmup not in WARMUPS:
             raise unknown_choice("chain warmup", self.warmup, WARMUPS)
+        if "jiti" in self.modes:
+            check_trigger_intervenes(self.trigger, self.warmup)
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         if self.jiti_gate and not self.critic_rollouts:

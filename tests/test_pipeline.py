@@ -142,3 +142,6 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
         run_chain(str(tmp_path / "other"), replace(TINY, critic_members=0), progress=False)
     with pytest.raises(UserInputError, match="chain warmup"):
         run_chain(str(tmp_path / "other"), replace(TINY, warmup="always"), progress=False)
+    with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):  # refused before any data is made
+        run_chain(str(tmp_path / "other"), replace(TINY, trigger="none"), progress=False)
+    assert not os.path.exists(tmp_path / "other")
