@@ -194,10 +194,15 @@ def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: flo
     return int(np.argmax(np.where(agreed, members.mean(axis=0), -np.inf)))
 
 
-def check_trigger_intervenes(trigger: str | None, warmup: str | None) -> None:
-    """Refuse JITI settings under which mode "jiti" could never intervene (it would run as a silent base
-    policy): trigger "none" without a steered warm-up. None stands for JITI's default."""
-    if trigger == "none" and warmup != "steer":
+def check_trigger_and_warmup(trigger: str | None, warmup: str | None, jiti_mode: bool, owner: str = "JITI") -> None:
+    """Refuse an unknown trigger or warm-up, and, when mode "jiti" runs (`jiti_mode`), settings under
+    which it could never intervene and would run as a silent base policy: trigger "none" without a
+    steered warm-up. None stands for JITI's default. `owner` names the settings in the error."""
+    if trigger is not None and trigger not in TRIGGERS:
+        raise unknown_choice(f"{owner} trigger", trigger, TRIGGERS)
+    if warmup is not None and warmup not in WARMUPS:
+        raise unknown_choice(f"{owner} warmup", warmup, WARMUPS)
+    if jiti_mode and trigger == "none" and warmup != "steer":
         raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
 
 
@@ -243,12 +248,7 @@ class JITI:
             raise unknown_choice("JITI mode", mode, MODES)
         if threshold_mode not in THRESHOLD_MODES:
             raise unknown_choice("JITI threshold_mode", threshold_mode, THRESHOLD_MODES)
-        if trigger not in TRIGGERS:
-            raise unknown_choice("JITI trigger", trigger, TRIGGERS)
-        if warmup not in WARMUPS:
-            raise unknown_choice("JITI warmup", warmup, WARMUPS)
-        if mode == "jiti":
-            check_trigger_intervenes(trigger, warmup)
+        check_trigger_and_warmup(trigger, warmup, jiti_mode=mode == "jiti")
         if int(window) < 1:
             raise UserInputError(f"JITI window must be >= 1, got {window}")
         if int(n_candidates) < 2:

@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.errors import UserInputError
 
 MODES = ("base", "always", "jiti")
 
@@ -118,14 +118,9 @@ class ChainConfig:
             raise UserInputError("chain suites: give at least one suite")
         if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
             raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
-        from elegant.jiti import TRIGGERS, WARMUPS, check_trigger_intervenes
+        from elegant.jiti import check_trigger_and_warmup
 
-        if self.trigger is not None and self.trigger not in TRIGGERS:
-            raise unknown_choice("chain trigger", self.trigger, TRIGGERS)
-        if self.warmup is not None and self.warmup not in WARMUPS:
-            raise unknown_choice("chain warmup", self.warmup, WARMUPS)
-        if "jiti" in self.modes:
-            check_trigger_intervenes(self.trigger, self.warmup)
+        check_trigger_and_warmup(self.trigger, self.warmup, jiti_mode="jiti" in self.modes, owner="chain")
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         if self.jiti_gate and not self.critic_rollouts:
