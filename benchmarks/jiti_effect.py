@@ -73,6 +73,7 @@ def main() -> None:
     parser.add_argument("--critic-explored-fraction", type=float, default=0.0, help="share of each batch from the rollouts' explored decisions")
     parser.add_argument("--max-overrides", type=int, help="JITI's budget of executed alternatives per episode (default: no limit)")
     parser.add_argument("--warmup", choices=WARMUPS, help="what JITI's first --window decisions execute: base (default) or steer (the critic's choice)")
+    parser.add_argument("--candidates", type=int, help="actions JITI draws from the policy per decision (default: JITI's, 16)")
     parser.add_argument("--jiti-gate", action="store_true",
                         help="validate base and JITI on the rollouts' starts first; evaluate JITI only on the tasks where it helped there")
     parser.add_argument("--critic-members", type=int, default=1,
@@ -87,6 +88,7 @@ def main() -> None:
         critic_hidden=tuple(parse_indices(args.critic_hidden, "--critic-hidden")), critic_weight_decay=args.critic_weight_decay,
         critic_mc_weight=args.critic_mc_weight, critic_value_loss=args.critic_value_loss, critic_explored_fraction=args.critic_explored_fraction,
         critic_members=args.critic_members, max_overrides=args.max_overrides, warmup=args.warmup, jiti_gate=args.jiti_gate,
+        candidates=args.candidates,
     )
     result = run_chain(args.out, config)
     table = verdicts(result)

@@ -206,6 +206,12 @@ def check_trigger_and_warmup(trigger: str | None, warmup: str | None, jiti_mode:
         raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
 
 
+def check_candidates(n_candidates: int, owner: str = "JITI") -> None:
+    """Refuse fewer than two candidates per decision: the base action and at least one alternative."""
+    if int(n_candidates) < 2:
+        raise UserInputError(f"{owner} n_candidates must be >= 2 (the base action plus alternatives), got {n_candidates}")
+
+
 def _choice_rng(seed: int) -> np.random.Generator:
     """Mode "random"'s generator: a stream of its own, apart from the candidate noise the same seed drives."""
     return np.random.default_rng([int(seed), 0x6A697469])
@@ -251,8 +257,7 @@ class JITI:
         check_trigger_and_warmup(trigger, warmup, jiti_mode=mode == "jiti")
         if int(window) < 1:
             raise UserInputError(f"JITI window must be >= 1, got {window}")
-        if int(n_candidates) < 2:
-            raise UserInputError(f"JITI n_candidates must be >= 2 (the base action plus alternatives), got {n_candidates}")
+        check_candidates(n_candidates)
         if float(threshold) < 0 or float(noise_scale) < 0:
             raise UserInputError(f"JITI threshold and noise_scale must be >= 0, got {threshold} and {noise_scale}")
         if trust_radius is not None and float(trust_radius) <= 0:

@@ -58,6 +58,7 @@ class ChainConfig:
     `critic_K`, and JITI judges with them as a `critics.CriticEnsemble` (every member must prefer an override).
     `max_overrides`: JITI's budget of executed alternatives per episode (None: no limit).
     `warmup`: what JITI's first `window` decisions execute, "base" (the base plan) or "steer" (`JITI`'s `warmup`).
+    `candidates`: actions JITI (and `always`) draw from the policy per decision (None: JITI's default, 16).
     `jiti_gate`: before the evaluation, the base policy and JITI each run `episodes` per task from the
     rollouts' starts (validation, never the evaluated ones), and JITI is then evaluated only on the tasks
     where it made more episodes elegant than it spoiled there (`elegant.gate`); needs `critic_rollouts`.
@@ -98,6 +99,7 @@ class ChainConfig:
     max_overrides: int | None = None
     warmup: str | None = None
     jiti_gate: bool = False
+    candidates: int | None = None
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -118,9 +120,11 @@ class ChainConfig:
             raise UserInputError("chain suites: give at least one suite")
         if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
             raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
-        from elegant.jiti import check_trigger_and_warmup
+        from elegant.jiti import check_candidates, check_trigger_and_warmup
 
         check_trigger_and_warmup(self.trigger, self.warmup, jiti_mode="jiti" in self.modes, owner="chain")
+        if self.candidates is not None:
+            check_candidates(self.candidates, owner="chain")
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         if self.jiti_gate and not self.critic_rollouts:
@@ -143,7 +147,7 @@ class ChainConfig:
         if mode == "base":
             return None
         settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window,
-                    "trigger": self.trigger, "max_overrides": self.max_overrides, "warmup": self.warmup}
+                    "trigger": self.trigger, "max_overrides": self.max_overrides, "warmup": self.warmup, "n_candidates": self.candidates}
         return {k: v for k, v in settings.items() if v is not None}
 
 
@@ -180,7 +184,8 @@ QUICKSTART = ChainConfig()
 # settings a chain directory may predate
 _ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
                 "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
-                "critic_explored_fraction", "trigger", "critic_members", "max_overrides", "warmup", "jiti_gate")
+                "critic_explored_fraction", "trigger", "critic_members", "max_overrides", "warmup", "jiti_gate",
+                "candidates")
 
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:

@@ -128,20 +128,22 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
 def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with_all(chain, tmp_path):
     """`critic_members` > 1: members `critic_1` .. `critic_K`, member k trained on bootstrap resample
     seed + k, and the JITI run is judged by all of them together, within its `max_overrides` budget and
-    with its `warmup`."""
+    with its `warmup` and number of `candidates`."""
     copy_data_and_policy(chain[0], tmp_path)
-    result = run_chain(str(tmp_path), replace(TINY, critic_members=2, seed=3, max_overrides=1, warmup="steer"), progress=False)
+    result = run_chain(str(tmp_path), replace(TINY, critic_members=2, seed=3, max_overrides=1, warmup="steer", candidates=5), progress=False)
     assert not os.path.exists(tmp_path / "critic")
     for k, resample in ((1, 3), (2, 4)):
         training = json.load(open(tmp_path / f"critic_{k}" / "critic.json"))["training"]
         assert (training["bootstrap"], training["seed"]) == (resample, resample)
     config = json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))
     assert config["critic"] == f"{tmp_path / 'critic_1'},{tmp_path / 'critic_2'}" and config["jiti"]["max_overrides"] == 1
-    assert config["jiti"]["warmup"] == "steer"
+    assert config["jiti"]["warmup"] == "steer" and config["jiti"]["n_candidates"] == 5
     with pytest.raises(UserInputError, match="critic_members must be >= 1"):
         run_chain(str(tmp_path / "other"), replace(TINY, critic_members=0), progress=False)
     with pytest.raises(UserInputError, match="chain warmup"):
         run_chain(str(tmp_path / "other"), replace(TINY, warmup="always"), progress=False)
     with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):  # refused before any data is made
         run_chain(str(tmp_path / "other"), replace(TINY, trigger="none"), progress=False)
+    with pytest.raises(UserInputError, match="chain n_candidates must be >= 2"):
+        run_chain(str(tmp_path / "other"), replace(TINY, candidates=1), progress=False)
     assert not os.path.exists(tmp_path / "other")
