@@ -17,7 +17,8 @@ Choices made here, each for a reason:
   approaches within the first 40 steps. With the same critics, the drop trigger alone cost 2.8 points
   of ESR on held-out starts, and steering the first 4 decisions as well gained 8.8 (9.2 with
   `trigger="none"`, the warm-up alone), more than `always`'s 6.4 at a quarter of its interventions
-  (benchmarks/RESULTS.md, session 27).
+  (benchmarks/RESULTS.md, session 27); run only on the tasks a validation gate enables (`elegant.gate`),
+  11.6 (session 28).
 - The window receives the score of the action actually executed (q_t, or the chosen candidate's score
   after an intervention): the window tracks the value of the trajectory being followed, so after a
   successful correction the new level becomes the reference instead of triggering again.
