@@ -17,8 +17,8 @@ Choices made here, each for a reason:
   approaches within the first 40 steps. With the same critics, the drop trigger alone cost 2.8 points
   of ESR on held-out starts, and steering the first 4 decisions as well gained 8.8 (9.2 with
   `trigger="none"`, the warm-up alone), more than `always`'s 6.4 at a quarter of its interventions
-  (benchmarks/RESULTS.md, session 27); run only on the tasks a validation gate enables (`elegant.gate`),
-  11.6 (session 28).
+  (benchmarks/RESULTS.md, session 27). Running JITI only on the tasks a validation gate enables
+  (`elegant.gate`) raised the gain to 11.6 (session 28).
 - The window receives the score of the action actually executed (q_t, or the chosen candidate's score
   after an intervention): the window tracks the value of the trajectory being followed, so after a
   successful correction the new level becomes the reference instead of triggering again.
@@ -207,10 +207,11 @@ def check_trigger_and_warmup(trigger: str | None, warmup: str | None, jiti_mode:
         raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
 
 
-def check_candidates(n_candidates: int, owner: str = "JITI") -> None:
-    """Refuse fewer than two candidates per decision: the base action and at least one alternative."""
+def check_candidates(n_candidates: int, setting: str = "JITI n_candidates") -> None:
+    """Refuse fewer than two candidates per decision: the base action and at least one alternative.
+    `setting` names the value in the error, as its owner (JITI, a chain) calls it."""
     if int(n_candidates) < 2:
-        raise UserInputError(f"{owner} n_candidates must be >= 2 (the base action plus alternatives), got {n_candidates}")
+        raise UserInputError(f"{setting} must be >= 2 (the base action plus alternatives), got {n_candidates}")
 
 
 def _choice_rng(seed: int) -> np.random.Generator:

@@ -124,7 +124,7 @@ class ChainConfig:
 
         check_trigger_and_warmup(self.trigger, self.warmup, jiti_mode="jiti" in self.modes, owner="chain")
         if self.candidates is not None:
-            check_candidates(self.candidates, owner="chain")
+            check_candidates(self.candidates, setting="chain candidates")
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         if self.jiti_gate and not self.critic_rollouts:

@@ -144,6 +144,6 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
         run_chain(str(tmp_path / "other"), replace(TINY, warmup="always"), progress=False)
     with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):  # refused before any data is made
         run_chain(str(tmp_path / "other"), replace(TINY, trigger="none"), progress=False)
-    with pytest.raises(UserInputError, match="chain n_candidates must be >= 2"):
+    with pytest.raises(UserInputError, match="chain candidates must be >= 2"):
         run_chain(str(tmp_path / "other"), replace(TINY, candidates=1), progress=False)
     assert not os.path.exists(tmp_path / "other")
