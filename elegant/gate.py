@@ -16,6 +16,9 @@ or libero_object (they would have switched JITI off on libero_goal/4, +14 ESR he
 steered warm-up the per-task effects are larger: on libero_object 25 validation episodes per task
 switched off the tasks the base policy already does perfectly, and the held-out ESR gain rose from
 +8.8 to +11.6 (spoiled episodes 27 -> 10); on libero_goal it fell from +4.8 to +3.8.
+Validating instead on nudged starts (`--perturbation init@nudge`: starts 0-24 with the task objects
+moved up to 2 cm, which no critic saw; session 30) gave gates no better: +11.0 on libero_object, +3.4
+on libero_goal.
 """
 from __future__ import annotations
 
