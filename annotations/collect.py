@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -18,6 +20,7 @@ from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
 from base_suites.atomic import changed_fields
 from base_suites.errors import UserInputError
+from base_suites.parallel import check_workers, in_order, run_jobs
 from base_suites.seeds import derive_seed
 
 
@@ -64,7 +67,7 @@ def collect_episodes(
     tasks: Sequence[int] | None,
     episodes: int,
     out: str,
-    source: EpisodeSource,
+    make_source: Callable[[], EpisodeSource],
     *,
     seed: int,
     horizon: Callable[[Any], int],
@@ -73,60 +76,99 @@ def collect_episodes(
     progress: bool = True,
     desc: str = "episodes",
     perturbation: str | None = None,
+    workers: int = 1,
 ) -> str:
-    """Roll `source` out `episodes` times per task (None: every task of the suite) and write them to `out` in the demo
-    layout: appended to `out.partial` as each finishes, renamed to `out` when all are there; `resume`
-    continues an interrupted file, only with the same `settings` (what determines the episodes: stored
-    in the file's `collection` attribute). `horizon(spec)` is each task's episode limit; `perturbation` (e.g.
-    "init@nudge") is applied to every env. Returns the path."""
+    """Roll the source `make_source()` builds out `episodes` times per task (None: every task of the suite)
+    and write them to `out` in the demo layout: appended to `out.partial` in episode order as they finish,
+    renamed to `out` when all are there; `resume` continues an interrupted file, only with the same
+    `settings` (what determines the episodes: stored in the file's `collection` attribute).
+    `horizon(spec)` is each task's episode limit; `perturbation` (e.g. "init@nudge") is applied to every
+    env. `workers`: processes recording episodes side by side (`base_suites.parallel`; `make_source` must
+    then be picklable); the file does not depend on it. Returns the path."""
     from tqdm import tqdm
 
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
+    workers = check_workers(workers)
     specs = task_specs(suite, tasks)
     collection = json.loads(json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings}))
-    writer: DemoWriter | None = None
-    bar = tqdm(total=len(specs) * episodes, desc=f"{desc} {suite}", disable=not progress, unit="ep")
+    first = make_env(suite, specs[0].index, seed=seed, max_steps=horizon(specs[0]), perturbation=perturbation)
     try:
-        for task_pos, spec in enumerate(specs):
-            env = make_env(suite, spec.index, seed=seed, max_steps=horizon(spec), perturbation=perturbation)
-            if writer is None:
-                writer = DemoWriter(out, {**dataset_attrs(env, suite, [s.index for s in specs]), "collection": collection}, resume=resume)
-                changed = changed_fields(writer.attrs.get("collection"), collection, ignore=("episodes",))
-                if changed:
-                    raise UserInputError(f"{out}.partial: cannot resume with different {', '.join(k for k, _, _ in changed)}; "
-                                         "delete it or collect with its settings")
-            done_before = writer.count
-            source.for_task(env, spec)
-            for i in range(episodes):
-                if task_pos * episodes + i < done_before:
-                    bar.update(1)
-                    continue
-                init, reset_seed = source.start(spec, i)
-                obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
-                layout = env.fixture_layout()
-                source.begin(env, i, reset_seed)
-                record = record_episode(env, source, obs)
-                demo = Demo(
-                    name="", actions=record["actions"], states=record["states"], obs=record["obs"],
-                    next_obs=record["next_obs"], rewards=record["rewards"], dones=record["dones"], final_state=record["final_state"],
-                    attrs={
-                        "suite": suite, "task_index": spec.index, "task_name": spec.name,
-                        "language_instruction": env.instruction, "init_state_index": init, "seed": seed,
-                        "episode": i, "success": record["success"], "perturbation": record["perturbation"],
-                        "reset_seed": reset_seed, "fixture_layout": layout, **source.episode_attrs(),
-                    },
-                )
-                writer.append(demo, env.metadata["state_layout"])
-                bar.update(1)
-            env.close()
-        return writer.finish() if writer is not None else out
+        file_attrs = {**dataset_attrs(first, suite, [s.index for s in specs]), "collection": collection}
+    finally:
+        first.close()
+    writer = DemoWriter(out, file_attrs, resume=resume)
+    bar = None
+    try:
+        changed = changed_fields(writer.attrs.get("collection"), collection, ignore=("episodes",))
+        if changed:
+            raise UserInputError(f"{out}.partial: cannot resume with different {', '.join(k for k, _, _ in changed)}; "
+                                 "delete it or collect with its settings")
+        done_before = writer.count
+        jobs = [EpisodeJob(pos * episodes + i, spec.index, i) for pos, spec in enumerate(specs) for i in range(episodes)
+                if pos * episodes + i >= done_before]
+        recorder = partial(EpisodeRecorder, make_source, suite, seed, {s.index: horizon(s) for s in specs}, perturbation)
+        bar = tqdm(total=len(specs) * episodes, initial=done_before, desc=f"{desc} {suite}", disable=not progress, unit="ep")
+        for _, (demo, layout) in in_order(run_jobs(recorder, jobs, workers), lambda job: job.position, first=done_before):
+            writer.append(demo, layout)
+            bar.update(1)
+        return writer.finish()
     except BaseException:
-        if writer is not None:
-            writer.abandon()
+        writer.abandon()
         raise
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    """One episode to record: its place in the file (demo_<position>), its task and its index within the task."""
+
+    position: int
+    task_index: int
+    episode: int
+
+
+class EpisodeRecorder:
+    """Records episodes (`EpisodeJob`) of one source, keeping one env between the episodes of a task
+    (building one costs ~2.5 s); returns each as a `Demo` with its env's state layout."""
+
+    def __init__(self, make_source: Callable[[], EpisodeSource], suite: str, seed: int, horizons: Mapping[int, int],
+                 perturbation: str | None) -> None:
+        self.source, self.suite, self.seed, self.horizons, self.perturbation = make_source(), suite, seed, horizons, perturbation
+        self._env: LiberoEnv | None = None
+        self._spec: Any = None
+
+    def __call__(self, job: EpisodeJob) -> tuple[Demo, list]:
+        if self._spec is None or self._spec.index != job.task_index:
+            self.close()
+            self._spec = task_specs(self.suite, [job.task_index])[0]
+            self._env = make_env(self.suite, job.task_index, seed=self.seed, max_steps=self.horizons[job.task_index],
+                                 perturbation=self.perturbation)
+            self.source.for_task(self._env, self._spec)
+        env, spec, source = self._env, self._spec, self.source
+        init, reset_seed = source.start(spec, job.episode)
+        obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
+        layout = env.fixture_layout()
+        source.begin(env, job.episode, reset_seed)
+        record = record_episode(env, source, obs)
+        demo = Demo(
+            name="", actions=record["actions"], states=record["states"], obs=record["obs"],
+            next_obs=record["next_obs"], rewards=record["rewards"], dones=record["dones"], final_state=record["final_state"],
+            attrs={
+                "suite": self.suite, "task_index": spec.index, "task_name": spec.name,
+                "language_instruction": env.instruction, "init_state_index": init, "seed": self.seed,
+                "episode": job.episode, "success": record["success"], "perturbation": record["perturbation"],
+                "reset_seed": reset_seed, "fixture_layout": layout, **source.episode_attrs(),
+            },
+        )
+        return demo, env.metadata["state_layout"]
+
+    def close(self) -> None:
+        if self._env is not None:
+            self._env.close()
+        self._env, self._spec = None, None
 
 
 class _ExpertSource:
@@ -166,8 +208,10 @@ def collect_demos(
     seed: int = 0,
     resume: bool = False,
     progress: bool = True,
+    workers: int = 1,
 ) -> dict[str, Any]:
-    """Roll out the scripted expert `episodes` times per task and write the demos file `out`.
+    """Roll out the scripted expert `episodes` times per task and write the demos file `out` (`workers`
+    processes side by side; the file does not depend on it).
 
     Returns a summary: demos written, success rate, per-knob rates, per-task success.
     """
@@ -175,9 +219,9 @@ def collect_demos(
 
     knob_rates(quality)  # validate before any work
     # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
-    path = collect_episodes(suite, tasks, episodes, out, _ExpertSource(quality, seed), seed=seed, resume=resume, progress=progress,
-                            horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps, desc="demos",
-                            settings={"quality": quality})
+    path = collect_episodes(suite, tasks, episodes, out, partial(_ExpertSource, quality, seed), seed=seed, resume=resume,
+                            progress=progress, horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps, desc="demos",
+                            settings={"quality": quality}, workers=workers)
     from annotations.dataset import DemoFile
 
     with DemoFile(path) as f:

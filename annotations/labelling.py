@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 from collections import OrderedDict
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,7 @@ from annotations.dataset import Demo, DemoFile, DemoWriter
 from annotations.format import ANNOTATION_SCHEMA_VERSION, CRITERIA
 from annotations.human_labels import apply_human_labels, read_human_labels
 from base_suites import LiberoEnv, UserInputError, make_env, make_perturbation
+from base_suites.parallel import check_workers, in_order, run_jobs
 from itc import EpisodeVerdict, ITCMonitor, ITCParams, derive_spec
 
 
@@ -104,6 +106,28 @@ class _EnvPool:
         self._open.clear()
 
 
+class _Replayer:
+    """Replays demos of one file by (position, name) and returns their ITC verdicts; its own read handle
+    and env pool, so it can run in a worker process."""
+
+    def __init__(self, params: ITCParams, overrides_dir: str | None, path: str) -> None:
+        self.path = path
+        self.source = DemoFile(path)
+        self.pool = _EnvPool(params, overrides_dir, path)
+
+    def __call__(self, job: tuple[int, str]) -> EpisodeVerdict:
+        demo = self.source.demo(job[1])
+        env, monitor = self.pool.get(demo)
+        try:
+            return replay_verdict(env, monitor, demo)
+        except UserInputError as e:
+            raise UserInputError(f"{self.path}: {e}") from None
+
+    def close(self) -> None:
+        self.pool.close()
+        self.source.close()
+
+
 def _labelled(demo: Demo, verdict: EpisodeVerdict, gamma: float) -> Demo:
     reward = verdict.elegance_reward
     attrs = {k: v for k, v in demo.attrs.items() if k != "num_samples"}
@@ -158,9 +182,12 @@ def annotate_file(
     gamma: float = 0.99,
     progress: bool = True,
     resume: bool = False,
+    workers: int = 1,
 ) -> dict[str, Any]:
-    """Write an ITC-annotated copy of a demo file; returns a summary (rates of success, elegance, violations)."""
+    """Write an ITC-annotated copy of a demo file; returns a summary (rates of success, elegance, violations).
+    `workers`: processes replaying demos side by side (`base_suites.parallel`); the file does not depend on it."""
     params = params or ITCParams()
+    check_workers(workers)
     if not 0.0 < gamma <= 1.0:
         raise UserInputError(f"gamma must be in (0, 1], got {gamma}")
     if os.path.abspath(in_path) == os.path.abspath(out_path):
@@ -181,23 +208,18 @@ def annotate_file(
         }
         records = _done_records(out_path + ".partial", file_attrs["annotation"]) if resume else []
         writer = DemoWriter(out_path, file_attrs, resume=resume)
-        pool = _EnvPool(params, overrides_dir, in_path)
         try:
-            for name in tqdm(source.names[writer.count :], desc="annotate", unit="demo", disable=not progress):
-                demo = source.demo(name)
-                env, monitor = pool.get(demo)
-                try:
-                    verdict = replay_verdict(env, monitor, demo)
-                except UserInputError as e:
-                    raise UserInputError(f"{in_path}: {e}") from None
+            done_before = writer.count
+            jobs = list(enumerate(source.names))[done_before:]
+            replayer = partial(_Replayer, params, overrides_dir, in_path)
+            results = in_order(run_jobs(replayer, jobs, workers), lambda job: job[0], first=done_before)
+            for (_, name), verdict in tqdm(results, total=len(jobs), desc="annotate", unit="demo", disable=not progress):
                 verdict = apply_human_labels(verdict, human.get(name, []))
-                writer.append(_labelled(demo, verdict, gamma))
+                writer.append(_labelled(source.demo(name), verdict, gamma))
                 records.append({"success": verdict.success, "elegant": verdict.elegant, "violated": verdict.violated})
             writer.finish()
         except BaseException:
             writer.abandon()
             raise
-        finally:
-            pool.close()
     return _summary(records, in_path, out_path, sum(len(v) for v in human.values()))
 

@@ -90,7 +90,7 @@ def main() -> None:
         critic_members=args.critic_members, max_overrides=args.max_overrides, warmup=args.warmup, jiti_gate=args.jiti_gate,
         candidates=args.candidates,
     )
-    result = run_chain(args.out, config)
+    result = run_chain(args.out, config, workers=args.workers)
     table = verdicts(result)
     print(f"{'suite':16s} {'mode':7s} {'success':>8s} {'ESR':>6s} {'interv/ep':>10s}")
     for suite, modes in result["per_suite"].items():

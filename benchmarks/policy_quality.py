@@ -39,7 +39,7 @@ def main() -> None:
     add_chain_arguments(parser)
     args = parser.parse_args()
     config = chain_config(args, modes=("base",))
-    result = run_chain(args.out, config)
+    result = run_chain(args.out, config, workers=args.workers)
     suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}
     tasks = {suite: {task: {k: row[k] for k in ("success_rate", "esr", "episodes")} for task, row in modes["base"].items()}
              for suite, modes in result["per_task"].items()}

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -85,6 +86,11 @@ def parse_indices(text: str | None, flag: str) -> list[int] | None:
     return out
 
 
+def _workers_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--workers", type=int, default=1,
+                   help="processes running episodes side by side (e.g. the number of cores); the results do not depend on it")
+
+
 def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
@@ -93,6 +99,7 @@ def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true", help="continue an interrupted file")
+    _workers_arg(p)
 
 
 @command("demos", "roll out scripted experts and write a LIBERO-layout HDF5 demos file")(_demos_args)
@@ -101,7 +108,7 @@ def _demos(args: argparse.Namespace) -> dict:
     from base_suites.experts import parse_quality
 
     return collect_demos(args.suite, _task_list(args.tasks), args.episodes, args.out, quality=parse_quality(args.quality),
-                         seed=args.seed, resume=args.resume)
+                         seed=args.seed, resume=args.resume, workers=args.workers)
 
 
 def _rollouts_args(p: argparse.ArgumentParser) -> None:
@@ -119,6 +126,7 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")
     p.add_argument("--resume", action="store_true", help="continue OUT.partial")
+    _workers_arg(p)
 
 
 @command("rollouts", "record a policy's episodes (optionally exploring) as a demo-layout HDF5 for annotation and critic training")(_rollouts_args)
@@ -128,7 +136,8 @@ def _rollouts(args: argparse.Namespace) -> dict:
     return collect_rollouts(args.suite, _task_list(args.tasks), args.policy, args.episodes, args.out, explore=args.explore,
                             explore_at=parse_indices(args.explore_at, "--explore-at"), trust_radius=args.trust_radius,
                             init_states=parse_indices(args.init_states, "--init-states"),
-                            seed=args.seed, max_steps=args.max_steps, perturbation=args.perturbation, resume=args.resume)
+                            seed=args.seed, max_steps=args.max_steps, perturbation=args.perturbation, resume=args.resume,
+                            workers=args.workers)
 
 
 def _import_args(p: argparse.ArgumentParser) -> None:
@@ -153,6 +162,7 @@ def _annotate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gamma", type=float, default=0.99, help="discount of the Monte-Carlo return")
     p.add_argument("--export-labels", help="also write the final segment labels as CSV here")
     p.add_argument("--resume", action="store_true")
+    _workers_arg(p)
 
 
 @command("annotate", "label demos with the four ITCs per step and per 25-frame window")(_annotate_args)
@@ -160,7 +170,8 @@ def _annotate(args: argparse.Namespace) -> dict:
     from annotations import annotate_file, export_segment_labels
 
     out = args.out or (args.demos[:-5] if args.demos.endswith(".hdf5") else args.demos) + ".annotated.hdf5"
-    summary = annotate_file(args.demos, out, labels_csv=args.labels, overrides_dir=args.specs, gamma=args.gamma, resume=args.resume)
+    summary = annotate_file(args.demos, out, labels_csv=args.labels, overrides_dir=args.specs, gamma=args.gamma, resume=args.resume,
+                            workers=args.workers)
     if args.export_labels:
         export_segment_labels(out, args.export_labels)
     return summary
@@ -304,6 +315,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
                         "(base, default) or the critic's choice (steer)")
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
     p.add_argument("--gate", help="mode jiti: a file from `elegant gate`; JITI runs only on the tasks it enables, the others as the base policy")
+    _workers_arg(p)
 
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
@@ -314,7 +326,7 @@ def _eval(args: argparse.Namespace) -> dict:
     summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
                        seed=args.seed, out=args.out, resume=args.resume, perturbation=args.perturbation,
                        jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"),
-                       gate=args.gate)
+                       gate=args.gate, workers=args.workers)
     return {k: v for k, v in summary.items() if k != "per_task"}
 
 
@@ -379,6 +391,8 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy-epochs", type=int, default=QUICKSTART.policy_epochs)
     p.add_argument("--episodes", type=int, default=QUICKSTART.episodes)
     p.add_argument("--seed", type=int, default=QUICKSTART.seed)
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="processes running episodes side by side (default: one per core); the results do not depend on it")
 
 
 @command("quickstart", "the whole chain on one task at small sizes: demos -> annotate -> critic -> policy -> eval -> report")(_quickstart_args)
@@ -386,7 +400,7 @@ def _quickstart(args: argparse.Namespace) -> dict:
     from elegant.pipeline import quickstart
 
     return quickstart(args.out, suites=(args.suite,), tasks=(args.task,), demos=args.demos, critic_steps=args.critic_steps,
-                      policy_epochs=args.policy_epochs, episodes=args.episodes, seed=args.seed)
+                      policy_epochs=args.policy_epochs, episodes=args.episodes, seed=args.seed, workers=args.workers)
 
 
 def build_parser() -> argparse.ArgumentParser:

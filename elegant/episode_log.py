@@ -49,6 +49,8 @@ class EpisodeLog:
 
 def run_records(records: Sequence[dict[str, Any]], config: Mapping[str, Any]) -> list[dict[str, Any]]:
     """The records a run's metrics count: those of its tasks and its first `episodes` episodes (a run resumed
-    with fewer episodes keeps the later ones in the log, but not in its numbers)."""
-    tasks = {task_key(config["suite"], i) for i in config["tasks"]}
-    return [r for r in records if r["task"] in tasks and int(r["episode"]) < int(config["episodes"])]
+    with fewer episodes keeps the later ones in the log, but not in its numbers), in the run's task order
+    and then by episode, whatever order they finished in (parallel workers finish out of order)."""
+    order = {task_key(config["suite"], i): n for n, i in enumerate(config["tasks"])}
+    counted = [r for r in records if r["task"] in order and int(r["episode"]) < int(config["episodes"])]
+    return sorted(counted, key=lambda r: (order[r["task"]], int(r["episode"])))

@@ -19,7 +19,9 @@ import json
 import os
 import time
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +31,7 @@ from tqdm import tqdm
 from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
+from base_suites.parallel import check_picklable, check_workers, run_jobs
 from base_suites.seeds import derive_seed
 from elegant.episode_log import EpisodeLog, run_records
 from elegant.jiti import JITI
@@ -96,6 +99,11 @@ def open_critic(critic: Any) -> Any:
         paths = str(critic).split(",")
         return critics.load(paths[0]) if len(paths) == 1 else critics.load_ensemble(paths)
     return critic
+
+
+def build_agent(policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any]) -> JITI:
+    """The evaluated agent: `policy` and `critic` opened (directories or objects) and wrapped in JITI."""
+    return JITI(open_policy(policy), open_critic(critic), mode=mode, seed=seed, **settings)
 
 
 def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
@@ -168,18 +176,19 @@ def evaluate(
     obs: str = "lowdim",
     init_states: Sequence[int] | None = None,
     gate: str | os.PathLike | None = None,
+    workers: int = 1,
 ) -> dict[str, Any]:
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
     object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
     task, starting from `init_states` only (None: all shipped init states; see `episode_start`). `gate`:
     a file from `elegant gate` (`elegant.gate`); the tasks it does not enable run in mode "base".
+    `workers`: processes running episodes side by side (`base_suites.parallel`); the numbers do not
+    depend on it, and with more than one the policy and critic must be directories or picklable.
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,
     overrides_per_episode, steps_per_episode, decision_time, env_step_time, decision_overhead, per_task.
     """
-    from itc import ITCMonitor
-
     if int(episodes) < 1:
         raise UserInputError(f"episodes must be >= 1, got {episodes}")
     settings = dict(jiti_kwargs or {})
@@ -200,7 +209,10 @@ def evaluate(
             raise UserInputError(f"--gate chooses the tasks JITI runs on; mode {mode!r} has none to choose")
         chosen = None if init_states is None else sorted({int(i) for i in init_states})
         enabled = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen)
-    agent = JITI(open_policy(policy), open_critic(critic), mode=mode, seed=seed, **settings)
+    workers = check_workers(workers)
+    if workers > 1:
+        check_picklable((policy, critic), "the policy or the critic")
+    agent = build_agent(policy, critic, mode, seed, settings)
     config = {
         "suite": suite,
         "tasks": indices,
@@ -221,13 +233,18 @@ def evaluate(
     _prepare_run_dir(out, config, resume)
     log = EpisodeLog(out / "episodes.jsonl")
     done = log.done()
-    todo = {i: [e for e in range(int(episodes)) if (task_key(suite, i), e) not in done] for i in indices}
-    with tqdm(total=len(indices) * int(episodes), initial=len(indices) * int(episodes) - sum(map(len, todo.values())),
+    jobs = [EvalJob(index, e, mode if enabled is None or enabled[task_key(suite, index)] else "base")
+            for index in indices for e in range(int(episodes)) if (task_key(suite, index), e) not in done]
+    # the agent built here serves a serial run; worker processes each build their own from the same inputs
+    make_worker = partial(EpisodeRunner, agent if workers == 1 else partial(build_agent, policy, critic, mode, seed, settings),
+                          config, str(out))
+    with tqdm(total=len(indices) * int(episodes), initial=len(indices) * int(episodes) - len(jobs),
               desc=f"eval {mode}", unit="ep", disable=not progress) as bar:
-        for index in indices:
-            if todo[index]:
-                agent.mode = mode if enabled is None or enabled[task_key(suite, index)] else "base"
-                _run_task(suite, index, todo[index], agent, ITCMonitor, config, log, out, bar)
+        for _, record in run_jobs(make_worker, jobs, workers):
+            log.append(record)
+            bar.update(1)
+            bar.set_postfix(success=f"{np.mean([r['success'] for r in log.records]):.2f}",
+                            esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}")
     records = run_records(log.records, config)
     summary = {"config": config, **summarize(records)}
     atomic_write(out / "summary.json", json.dumps(summary, indent=2))
@@ -235,33 +252,59 @@ def evaluate(
     return summary
 
 
-def _run_task(suite: str, index: int, episodes: list[int], agent: JITI, monitor_cls: Any, config: dict[str, Any],
-              log: EpisodeLog, out: Path, bar: tqdm) -> None:
-    """The missing episodes of one task on one env (built once: construction costs ~2.5 s)."""
-    key = task_key(suite, index)
-    env = make_env(suite, index, seed=config["seed"], obs=config["obs"], max_steps=config["max_steps"], perturbation=config["perturbation"])
-    try:
-        monitor = monitor_cls(env)
-        for episode in episodes:
-            init_index, reset_seed = episode_start(config["seed"], suite, index, episode, env.task.n_init_states, config["init_states"])
-            numbers, verdict = _run_episode(env, agent, monitor, init_index, reset_seed)
-            record = {"task": key, "suite": suite, "task_index": index, "episode": episode, "init_index": init_index,
-                      "seed": reset_seed, "mode": config["mode"], **numbers,
-                      "trace": f"traces/{trace_name(suite, index, episode)}"}
-            trace = {
-                **{k: record[k] for k in ("task", "episode", "init_index", "mode", "success", "elegant", "violated")},
-                "jiti": config["jiti"],
-                "segments": {c: np.asarray(v, dtype=bool).tolist() for c, v in verdict.segments.items()},
-                "events": [list(e) for e in verdict.events],
-                "decisions": agent.trace(),
-            }
-            atomic_write(out / record["trace"], json.dumps(trace))
-            log.append(record)
-            bar.update(1)
-            bar.set_postfix(success=f"{np.mean([r['success'] for r in log.records]):.2f}",
-                            esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}")
-    finally:
-        env.close()
+@dataclass(frozen=True)
+class EvalJob:
+    """One episode to run: the task, the episode index and the mode it runs in (the run's mode, or "base"
+    on a task a gate leaves off)."""
+
+    task_index: int
+    episode: int
+    mode: str
+
+
+class EpisodeRunner:
+    """Runs evaluation episodes (`EvalJob`) and returns their records, writing each one's decision trace.
+
+    Keeps one env with its ITC monitor between episodes of a task (building one costs ~2.5 s). `agent`
+    is the JITI-wrapped policy, or a factory that builds it (in a worker process, from directories)."""
+
+    def __init__(self, agent: JITI | Callable[[], JITI], config: Mapping[str, Any], out: str) -> None:
+        self.agent = agent if isinstance(agent, JITI) else agent()
+        self.config, self.out = config, Path(out)
+        self._task: int | None = None
+        self._env = self._monitor = None
+
+    def __call__(self, job: EvalJob) -> dict[str, Any]:
+        from itc import ITCMonitor
+
+        config, suite = self.config, self.config["suite"]
+        if job.task_index != self._task:
+            self.close()
+            self._env = make_env(suite, job.task_index, seed=config["seed"], obs=config["obs"], max_steps=config["max_steps"],
+                                 perturbation=config["perturbation"])
+            self._monitor, self._task = ITCMonitor(self._env), job.task_index
+        env, agent = self._env, self.agent
+        agent.mode = job.mode
+        init_index, reset_seed = episode_start(config["seed"], suite, job.task_index, job.episode, env.task.n_init_states,
+                                               config["init_states"])
+        numbers, verdict = _run_episode(env, agent, self._monitor, init_index, reset_seed)
+        record = {"task": task_key(suite, job.task_index), "suite": suite, "task_index": job.task_index, "episode": job.episode,
+                  "init_index": init_index, "seed": reset_seed, "mode": config["mode"], **numbers,
+                  "trace": f"traces/{trace_name(suite, job.task_index, job.episode)}"}
+        trace = {
+            **{k: record[k] for k in ("task", "episode", "init_index", "mode", "success", "elegant", "violated")},
+            "jiti": config["jiti"],
+            "segments": {c: np.asarray(v, dtype=bool).tolist() for c, v in verdict.segments.items()},
+            "events": [list(e) for e in verdict.events],
+            "decisions": agent.trace(),
+        }
+        atomic_write(self.out / record["trace"], json.dumps(trace))
+        return record
+
+    def close(self) -> None:
+        if self._env is not None:
+            self._env.close()
+        self._task, self._env, self._monitor = None, None, None
 
 
 def trace_name(suite: str, task_index: int, episode: int) -> str:

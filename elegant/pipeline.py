@@ -165,6 +165,7 @@ def add_chain_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy (and of the critic)")
     parser.add_argument("--max-steps", type=int, help="episode horizon (default: the suites')")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1, help="processes running episodes side by side; the results do not depend on it")
 
 
 def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
@@ -221,8 +222,10 @@ def _pooled(summaries: list[dict[str, Any]]) -> dict[str, float]:
     return {k: sum(s[k] * s["episodes"] for s in summaries) / n for k in ("success_rate", "esr", "interventions_per_episode")}
 
 
-def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True) -> dict[str, Any]:
-    """Run (or continue) the chain in directory `out`.
+def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True, workers: int = 1) -> dict[str, Any]:
+    """Run (or continue) the chain in directory `out`, its episodes (demos, annotation replays, rollouts,
+    evaluations) on `workers` processes side by side: a run control, not a setting (the numbers do not
+    depend on it), so a chain may be continued with another count.
 
     Returns {mode: pooled success_rate, esr, interventions_per_episode}, per_suite {suite: {mode: the
     same}}, per_task {suite: {mode: the run summary's per-task rows}}, report (the comparison markdown),
@@ -259,10 +262,11 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     for suite in cfg.suites:
         if not os.path.exists(demos[suite]):
             say(f"demos: {cfg.demos} {cfg.quality}-quality expert episodes per task of {suite}")
-            collect_demos(suite, tasks, cfg.demos, demos[suite], quality=cfg.quality, seed=cfg.seed, resume=True, progress=progress)
+            collect_demos(suite, tasks, cfg.demos, demos[suite], quality=cfg.quality, seed=cfg.seed, resume=True, progress=progress,
+                          workers=workers)
         if not os.path.exists(annotated[suite]):
             say(f"annotate {suite}: ITC labels by replaying the demos in the simulator")
-            annotate_file(demos[suite], annotated[suite], resume=True, progress=progress)
+            annotate_file(demos[suite], annotated[suite], resume=True, progress=progress, workers=workers)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
         train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk,
@@ -280,10 +284,10 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
             say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, {how}")
             collect_rollouts(suite, tasks, policy_dir, cfg.critic_rollouts, rollouts[suite], **explore,
                              trust_radius=cfg.trust_radius, init_states=rollout_starts, seed=cfg.seed, max_steps=cfg.max_steps,
-                             resume=True, progress=progress)
+                             resume=True, progress=progress, workers=workers)
         if not os.path.exists(annotated_rollouts[suite]):
             say(f"annotate the rollouts of {suite}")
-            annotate_file(rollouts[suite], annotated_rollouts[suite], resume=True, progress=progress)
+            annotate_file(rollouts[suite], annotated_rollouts[suite], resume=True, progress=progress, workers=workers)
         critic_data.append(annotated_rollouts[suite])
     for k, (critic_dir, member) in enumerate(zip(critic_dirs, members)):
         if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
@@ -300,7 +304,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
                 validation[mode] = os.path.join(out, f"validate_{mode}_{suite}")
                 evaluate(suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes, seed=cfg.seed, out=validation[mode],
                          resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode), max_steps=cfg.max_steps,
-                         init_states=rollout_starts)
+                         init_states=rollout_starts, workers=workers)
             gates[suite] = os.path.join(out, f"gate_{suite}.json")
             write_gate(validation["base"], validation["jiti"], gates[suite])
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
@@ -310,7 +314,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
             summaries[mode][suite] = evaluate(
                 suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes,
                 seed=cfg.seed, out=runs[mode][suite], resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode),
-                max_steps=cfg.max_steps, init_states=eval_starts, gate=gates[suite] if mode == "jiti" else None,
+                max_steps=cfg.max_steps, init_states=eval_starts, gate=gates[suite] if mode == "jiti" else None, workers=workers,
             )
     report_dir = os.path.join(out, "report")
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)
@@ -322,6 +326,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True)
     return result
 
 
-def quickstart(out: str = "runs/quickstart", config: ChainConfig | None = None, progress: bool = True, **overrides: Any) -> dict[str, Any]:
+def quickstart(out: str = "runs/quickstart", config: ChainConfig | None = None, progress: bool = True, workers: int = 1,
+               **overrides: Any) -> dict[str, Any]:
     """The README's first command: the chain at `QUICKSTART` sizes (fields replaced by `overrides`)."""
-    return run_chain(out, replace(config or QUICKSTART, **overrides), progress=progress)
+    return run_chain(out, replace(config or QUICKSTART, **overrides), progress=progress, workers=workers)

@@ -22,6 +22,7 @@ explored decision, and a critic could not tell which of the two changed the outc
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -31,6 +32,7 @@ from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
 from base_suites.errors import UserInputError
+from base_suites.parallel import check_picklable
 from base_suites.seeds import derive_seed
 from elegant.evaluation import check_init_states, episode_start, open_policy
 from elegant.jiti import JITI
@@ -72,6 +74,13 @@ class _PolicySource:
         return {"policy": self.policy_name, "rollout": self.agent.config(), "explored_steps": explored}
 
 
+def _policy_source(policy: Any, agent_settings: Mapping[str, Any], suite: str, seed: int, init_states: Sequence[int] | None,
+                   policy_name: str, explore_at: Sequence[int] | None) -> _PolicySource:
+    """The rollouts' actor, built from picklable inputs (a worker process builds its own)."""
+    agent = JITI(open_policy(policy), None, seed=seed, **agent_settings)
+    return _PolicySource(agent, suite, seed, init_states, policy_name, explore_at)
+
+
 def branch_step(explore_at: Sequence[int], episode: int, n_starts: int) -> int:
     """The step whose decision episode `episode` explores, with `--explore-at`: starts cycle first (episode i
     starts from the (i mod n_starts)-th start of the seeded order), then the branch points, so the first
@@ -96,13 +105,15 @@ def collect_rollouts(
     perturbation: str | None = None,
     resume: bool = False,
     progress: bool = True,
+    workers: int = 1,
 ) -> dict[str, Any]:
     """Roll `policy` (a directory or a callable) out `episodes` times per task of `suite` (None: every task of it)
     and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
     the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
     policy as it is; more episodes than `init_states` then repeat episodes exactly). `perturbation`: as in
     `elegant eval`; "init@nudge" moves the task objects up to 2 cm, giving starts beyond the shipped ones
-    (with `explore_at`, a start's branches share its nudge).
+    (with `explore_at`, a start's branches share its nudge). `workers`: processes recording episodes side
+    by side; the file does not depend on it.
 
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
@@ -114,19 +125,23 @@ def collect_rollouts(
         if not explore_at or min(explore_at) < 0:
             raise UserInputError(f"rollouts: --explore-at needs decision steps >= 0, got {list(explore_at)}")
         explore_at = [int(t) for t in explore_at]
-    mode = "random" if explore > 0 or explore_at is not None else "base"
-    agent = JITI(open_policy(policy), None, mode=mode, random_rate=explore, trust_radius=trust_radius,
-                 n_candidates=n_candidates, seed=seed)
+    agent_settings = {"mode": "random" if explore > 0 or explore_at is not None else "base", "random_rate": explore,
+                      "trust_radius": trust_radius, "n_candidates": n_candidates}
     name = policy if isinstance(policy, str) else type(policy).__name__
-    source = _PolicySource(agent, suite, seed, None if init_states is None else list(init_states), name, explore_at)
-    settings = {"policy": name, "rollout": agent.config(), "init_states": source.init_states, "max_steps": max_steps}
+    make_source = partial(_policy_source, policy, agent_settings, suite, seed, None if init_states is None else list(init_states), name,
+                          explore_at)
+    if workers > 1:
+        check_picklable(make_source, "the policy")
+    source = make_source()  # here for the settings it records, and to refuse a bad policy before any env is built
+    settings = {"policy": name, "rollout": source.agent.config(), "init_states": source.init_states, "max_steps": max_steps}
     if explore_at is not None:  # only then: files collected before it existed still resume
         settings["explore_at"] = explore_at
         settings["branches_share_reset_seed"] = True
     if perturbation:  # likewise
         settings["perturbation"] = perturbation
-    path = collect_episodes(suite, tasks, episodes, out, source, seed=seed, resume=resume, progress=progress, desc="rollouts",
-                            horizon=lambda spec: max_steps or spec.default_max_steps, settings=settings, perturbation=perturbation)
+    path = collect_episodes(suite, tasks, episodes, out, (lambda: source) if workers == 1 else make_source, seed=seed, resume=resume,
+                            progress=progress, desc="rollouts", horizon=lambda spec: max_steps or spec.default_max_steps,
+                            settings=settings, perturbation=perturbation, workers=workers)
     with DemoFile(path) as f:
         demos = list(f)
     return {

@@ -94,6 +94,27 @@ def test_resume_runs_only_missing_episodes_and_matches_a_fresh_run(runs):
     assert again["q"] == fresh["q"] and again["chosen"] == fresh["chosen"]
 
 
+def test_a_run_on_two_workers_gives_the_serial_runs_episodes_traces_and_summary(runs, tmp_path):
+    out = tmp_path / "parallel"
+    summary = run(out, workers=2)
+    serial = runs["root"] / "full"
+    assert untimed(sorted(records(out), key=lambda r: r["episode"])) == untimed(records(serial))
+    for r in records(out):
+        fresh, again = (json.loads((d / r["trace"]).read_text()) for d in (serial, out))
+        fresh["decisions"].pop("time"), again["decisions"].pop("time")
+        assert again == fresh
+    timing = ("decision_time", "env_step_time", "decision_overhead")
+    assert {k: v for k, v in summary.items() if k not in timing + ("per_task",)} == \
+        {k: v for k, v in runs["full"].items() if k not in timing + ("per_task",)}
+
+
+def test_a_policy_workers_cannot_receive_is_refused_before_any_episode(tmp_path):
+    with pytest.raises(UserInputError, match="cannot be sent to worker processes"):
+        evaluate(SUITE, [TASK], lambda obs: np.zeros(7), None, "base", 2, 0, tmp_path / "lambda", progress=False, max_steps=STEPS,
+                 workers=2)
+    assert not (tmp_path / "lambda").exists()
+
+
 def test_modes_start_from_the_same_init_states(runs):
     jiti, base = records(runs["root"] / "full"), records(runs["root"] / "base")
     assert [(r["init_index"], r["seed"]) for r in jiti] == [(r["init_index"], r["seed"]) for r in base]

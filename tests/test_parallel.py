@@ -1,0 +1,96 @@
+"""Episodes on worker processes (`base_suites.parallel`): the runner's contract with toy jobs, then the real
+collectors, whose files must not depend on the number of workers."""
+import os
+
+import h5py
+import numpy as np
+import pytest
+
+from annotations import annotate_file
+from annotations.collect import collect_demos
+from base_suites import UserInputError
+from base_suites.parallel import check_workers, in_order, run_jobs
+
+
+class Doubler:
+    """A worker that remembers which process it runs in and how many jobs it did (state kept between jobs)."""
+
+    def __init__(self, fail_at=None):
+        self.fail_at, self.done = fail_at, 0
+
+    def __call__(self, job):
+        if job == self.fail_at:
+            raise UserInputError(f"job {job} is bad")
+        self.done += 1
+        return job * 2, os.getpid(), self.done
+
+
+def test_one_worker_runs_in_this_process_in_order_and_keeps_its_state():
+    results = list(run_jobs(Doubler, [3, 1, 2], workers=1))
+    assert [(job, value) for job, (value, _, _) in results] == [(3, 6), (1, 2), (2, 4)]
+    assert {pid for _, (_, pid, _) in results} == {os.getpid()}
+    assert [done for _, (_, _, done) in results] == [1, 2, 3]
+
+
+def test_two_workers_give_every_result_from_other_processes():
+    results = dict(run_jobs(Doubler, list(range(8)), workers=2))
+    assert {job: value for job, (value, _, _) in results.items()} == {j: 2 * j for j in range(8)}
+    pids = {pid for _, pid, _ in results.values()}
+    assert os.getpid() not in pids and 1 <= len(pids) <= 2
+    # each worker is built once and kept: its job counter runs over all the jobs it did
+    for pid in pids:
+        counts = sorted(done for _, p, done in results.values() if p == pid)
+        assert counts == list(range(1, len(counts) + 1))
+
+
+def test_a_failing_job_raises_its_error_in_the_parent():
+    from functools import partial
+
+    with pytest.raises(UserInputError, match="job 2 is bad"):
+        list(run_jobs(partial(Doubler, fail_at=2), list(range(6)), workers=2))
+
+
+def test_worker_count_and_unpicklable_factories_are_refused():
+    with pytest.raises(UserInputError, match="--workers must be >= 1"):
+        check_workers(0)
+    with pytest.raises(UserInputError, match="cannot be sent to worker processes"):
+        list(run_jobs(lambda: Doubler(), [1, 2], workers=2))
+    assert list(run_jobs(lambda: Doubler(), [1], workers=1))[0][1][0] == 2  # one worker needs no pickling
+
+
+def test_in_order_releases_results_by_position_from_the_first_missing_one():
+    arrived = [(2, "c"), (0, "a"), (3, "d"), (1, "b")]
+    assert [job for job, _ in in_order(arrived, lambda job: job)] == [0, 1, 2, 3]
+    assert [job for job, _ in in_order([(5, "x"), (4, "y")], lambda job: job, first=4)] == [4, 5]
+    with pytest.raises(RuntimeError, match="position 1 never did"):
+        list(in_order([(0, "a"), (2, "c")], lambda job: job))
+
+
+def _contents(path):
+    """Every dataset and attribute of an HDF5 file, as comparable Python values."""
+    out = {}
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            out[name] = np.asarray(obj[()]).tolist()
+        out[name + "@attrs"] = {k: np.asarray(v).tolist() for k, v in obj.attrs.items()}
+
+    with h5py.File(path) as f:
+        f.visititems(visit)
+        out["data@attrs"] = {k: np.asarray(v).tolist() for k, v in f["data"].attrs.items()}
+    return out
+
+
+@pytest.mark.sim
+def test_demos_and_their_annotation_do_not_depend_on_the_number_of_workers(tmp_path):
+    files = {}
+    for workers in (1, 2):
+        demos = str(tmp_path / f"demos_{workers}.hdf5")
+        collect_demos("libero_object", [0, 1], 2, demos, quality={"tilt": 0.5, "collide": 0.5}, seed=2, progress=False, workers=workers)
+        annotated = str(tmp_path / f"annotated_{workers}.hdf5")
+        annotate_file(demos, annotated, progress=False, workers=workers)
+        files[workers] = (_contents(demos), _contents(annotated))
+    serial, parallel = files[1], files[2]
+    assert len([k for k in serial[0] if k.endswith("/actions")]) == 4  # 2 tasks x 2 episodes, demo_0..demo_3
+    assert serial[0] == parallel[0]
+    assert serial[1] == parallel[1]
