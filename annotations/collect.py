@@ -8,6 +8,7 @@ uninterrupted run would have.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -92,12 +93,7 @@ def collect_episodes(
     workers = check_workers(workers)
     specs = task_specs(suite, tasks)
     collection = json.loads(json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings}))
-    first = make_env(suite, specs[0].index, seed=seed, max_steps=horizon(specs[0]), perturbation=perturbation)
-    try:
-        file_attrs = {**dataset_attrs(first, suite, [s.index for s in specs]), "collection": collection}
-    finally:
-        first.close()
-    writer = DemoWriter(out, file_attrs, resume=resume)
+    writer = DemoWriter(out, _file_attrs(out, resume, suite, specs, seed, horizon, perturbation, collection), resume=resume)
     bar = None
     try:
         changed = changed_fields(writer.attrs.get("collection"), collection, ignore=("episodes",))
@@ -109,9 +105,10 @@ def collect_episodes(
                 if pos * episodes + i >= done_before]
         recorder = partial(EpisodeRecorder, make_source, suite, seed, {s.index: horizon(s) for s in specs}, perturbation)
         bar = tqdm(total=len(specs) * episodes, initial=done_before, desc=f"{desc} {suite}", disable=not progress, unit="ep")
-        for _, (demo, layout) in in_order(run_jobs(recorder, jobs, workers), lambda job: job.position, first=done_before):
-            writer.append(demo, layout)
-            bar.update(1)
+        with run_jobs(recorder, jobs, workers) as results:
+            for _, (demo, layout) in in_order(results, lambda job: job.position, first=done_before):
+                writer.append(demo, layout)
+                bar.update(1)
         return writer.finish()
     except BaseException:
         writer.abandon()
@@ -119,6 +116,19 @@ def collect_episodes(
     finally:
         if bar is not None:
             bar.close()
+
+
+def _file_attrs(out: str, resume: bool, suite: str, specs: Sequence[Any], seed: int, horizon: Callable[[Any], int],
+                perturbation: str | None, collection: Mapping[str, Any]) -> dict[str, Any]:
+    """The new file's `data` attributes, read off the first task's env; none when an interrupted file is
+    resumed (it keeps its own), so a resume builds no env before its settings are checked."""
+    if resume and os.path.exists(out + ".partial"):
+        return {}
+    env = make_env(suite, specs[0].index, seed=seed, max_steps=horizon(specs[0]), perturbation=perturbation)
+    try:
+        return {**dataset_attrs(env, suite, [s.index for s in specs]), "collection": collection}
+    finally:
+        env.close()
 
 
 @dataclass(frozen=True)

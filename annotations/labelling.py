@@ -212,11 +212,12 @@ def annotate_file(
             done_before = writer.count
             jobs = list(enumerate(source.names))[done_before:]
             replayer = partial(_Replayer, params, overrides_dir, in_path)
-            results = in_order(run_jobs(replayer, jobs, workers), lambda job: job[0], first=done_before)
-            for (_, name), verdict in tqdm(results, total=len(jobs), desc="annotate", unit="demo", disable=not progress):
-                verdict = apply_human_labels(verdict, human.get(name, []))
-                writer.append(_labelled(source.demo(name), verdict, gamma))
-                records.append({"success": verdict.success, "elegant": verdict.elegant, "violated": verdict.violated})
+            with run_jobs(replayer, jobs, workers) as results:
+                ordered = in_order(results, lambda job: job[0], first=done_before)
+                for (_, name), verdict in tqdm(ordered, total=len(jobs), desc="annotate", unit="demo", disable=not progress):
+                    verdict = apply_human_labels(verdict, human.get(name, []))
+                    writer.append(_labelled(source.demo(name), verdict, gamma))
+                    records.append({"success": verdict.success, "elegant": verdict.elegant, "violated": verdict.violated})
             writer.finish()
         except BaseException:
             writer.abandon()

@@ -5,22 +5,30 @@ Why: an episode is a few seconds of single-threaded robosuite Python (85-110 env
 were run by hand as two halves of a suite. Every episode here is a function of its task, its index and
 the run seed only (resets zero the solver state LIBERO forgets; policies and JITI restart their random
 streams from the episode's reset seed), so episodes can run in any process and in any order and the
-numbers do not depend on the number of workers.
+results (all but wall-clock timings) do not depend on the number of workers.
 
 A worker is built once per process by a picklable factory (`make_worker()` returns a callable
-job -> result) and keeps its env and policy between jobs, as the serial loop did: building an env costs
-about 2.5 s. With `workers` 1 the same worker runs in this process, so both paths execute one piece of
-code. Worker processes are started with "spawn" (MuJoCo and torch threads do not survive a fork) and
-limited to one BLAS / OpenMP thread each, since the workers already fill the cores.
+job -> result) and keeps its env and policy between jobs, as a serial loop would: building an env costs
+about 2.5 s. It is built at its first job, so an error in building it reaches the caller like any job's
+error (a user mistake as one line). With `workers` 1 the same worker runs in this process, so both
+paths execute one piece of code. Every path runs with one BLAS / OpenMP / torch thread: the workers
+already fill the cores, and a reduction split over another number of threads could round differently
+and flip a sampled action. Worker processes are started with "spawn" (MuJoCo and torch threads do not
+survive a fork), ignore Ctrl-C (the parent stops them), and are terminated when the run stops early
+(an error, a break, Ctrl-C); a worker that dies (a crash, the OOM killer) stops the run with
+`BrokenProcessPool` instead of leaving it waiting.
 """
 from __future__ import annotations
 
+import argparse
 import multiprocessing
 import os
 import pickle
+import signal
 import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 from base_suites.errors import UserInputError
@@ -29,7 +37,19 @@ Job = TypeVar("Job")
 Result = TypeVar("Result")
 
 _THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+_factory: Callable[[], Callable[[Any], Any]] | None = None
 _worker: Callable[[Any], Any] | None = None
+
+
+def add_workers_argument(parser: argparse.ArgumentParser, default: int = 1) -> None:
+    """The `--workers` option every command that runs episodes takes."""
+    parser.add_argument("--workers", type=int, default=default,
+                        help=f"processes running episodes side by side (default: {default}); results do not depend on it")
+
+
+def available_cores() -> int:
+    """The cores this process may run on (its affinity, which a container or `taskset` may narrow)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def check_workers(workers: int) -> int:
@@ -40,67 +60,117 @@ def check_workers(workers: int) -> int:
 
 
 def check_picklable(value: Any, what: str) -> None:
-    """Refuse, before any work, a value that worker processes cannot receive (a policy object defined in a
-    script, a lambda): such policies run with workers=1, or are saved to a directory first."""
+    """Refuse, before any work, a value that cannot be sent to worker processes (a lambda, a local class,
+    an open file): such values run with one worker."""
     try:
         pickle.dumps(value)
     except Exception as exc:  # pickling raises many types (PicklingError, TypeError, AttributeError)
         raise UserInputError(f"{what} cannot be sent to worker processes ({type(exc).__name__}); "
-                             "pass it as a directory or run with workers=1") from None
+                             "pass a directory, or run with --workers 1") from None
+
+
+@contextmanager
+def _spawned_with_one_thread() -> Iterator[None]:
+    """Processes started inside inherit one-thread settings (read by BLAS, OpenMP and torch at import)."""
+    saved = {name: os.environ.get(name) for name in _THREAD_VARIABLES}
+    os.environ.update({name: "1" for name in _THREAD_VARIABLES})
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def _limit_torch_threads() -> None:
+    torch = sys.modules.get("torch")
+    if torch is not None and torch.get_num_threads() != 1:
+        torch.set_num_threads(1)
 
 
 def _start_worker(make_worker: Callable[[], Callable[[Any], Any]]) -> None:
-    for name in _THREAD_VARIABLES:
-        os.environ[name] = "1"
-    from threadpoolctl import threadpool_limits
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the parent, which terminates the pool
+    global _factory
+    _factory = make_worker
 
-    threadpool_limits(1)
+
+def _run_job(numbered: tuple[int, Any]) -> tuple[int, Any]:
     global _worker
-    _worker = make_worker()
-    if "torch" in sys.modules:  # imported by the factory (a policy, a critic): one intra-op thread
-        sys.modules["torch"].set_num_threads(1)
+    if _worker is None:
+        assert _factory is not None, "worker process used before _start_worker"
+        _worker = _factory()
+    _limit_torch_threads()
+    return numbered[0], _worker(numbered[1])
 
 
-def _run_job(job: Any) -> Any:
-    assert _worker is not None, "worker used before _start_worker"
-    return _worker(job)
+@contextmanager
+def run_jobs(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job],
+             workers: int = 1) -> Iterator[Iterator[tuple[Job, Result]]]:
+    """Context giving an iterator of (job, result) pairs in the order the jobs finish (submission order
+    with one worker). A job's exception is raised from the iterator; leaving the context (an error, a
+    break, Ctrl-C, or the end) terminates the workers, so no further job runs.
 
-
-def run_jobs(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job], workers: int = 1) -> Iterator[tuple[Job, Result]]:
-    """Run every job and yield (job, result) as each finishes (in submission order with one worker).
-
-    A job that raises stops the run: the jobs not yet started are cancelled, the running ones finish,
-    and the exception is raised here. Stopping the iteration early cancels the rest the same way.
+        with run_jobs(factory, jobs, workers) as results:
+            for job, result in results: ...
     """
     workers = check_workers(workers)
+    if workers == 1 or len(jobs) <= 1:
+        serial = _serial(make_worker, jobs)
+        try:
+            yield serial
+        finally:
+            serial.close()
+        return
+    check_picklable(make_worker, "the worker factory")
+    with _spawned_with_one_thread():
+        pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_start_worker, initargs=(make_worker,))
+    try:
+        yield _as_finished(pool, jobs)
+    finally:
+        processes = list((getattr(pool, "_processes", None) or {}).values())  # shutdown forgets them
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()  # an episode under way or queued for a worker is not waited for
+        pool.shutdown(wait=True)
+
+
+def _as_finished(pool: ProcessPoolExecutor, jobs: Sequence[Job]) -> Iterator[tuple[Job, Result]]:
+    numbered = {pool.submit(_run_job, (n, job)): n for n, job in enumerate(jobs)}
+    for future in as_completed(numbered):
+        n, result = future.result()
+        yield jobs[n], result
+
+
+def _serial(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job]) -> Iterator[tuple[Job, Result]]:
+    """The jobs in this process, with one BLAS and one torch thread as in a worker (restored after)."""
+    from threadpoolctl import threadpool_limits
+
     if not jobs:
         return
-    if workers == 1:
+    with threadpool_limits(1, user_api="blas"):
         worker = make_worker()
+        torch = sys.modules.get("torch")
+        threads = torch.get_num_threads() if torch is not None else None
+        _limit_torch_threads()
         try:
             for job in jobs:
                 yield job, worker(job)
         finally:
-            _close(worker)
-        return
-    check_picklable(make_worker, "the worker factory")
-    pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_start_worker, initargs=(make_worker,))
-    try:
-        pending: dict[Future, tuple[int, Job]] = {pool.submit(_run_job, job): (n, job) for n, job in enumerate(jobs)}
-        while pending:
-            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in sorted(finished, key=lambda f: pending[f][0]):
-                _, job = pending.pop(future)
-                yield job, future.result()
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+            if threads is not None:
+                torch.set_num_threads(threads)
+            close = getattr(worker, "close", None)
+            if callable(close):
+                close()
 
 
 def in_order(results: Iterable[tuple[Job, Result]], position: Callable[[Job], int], first: int = 0) -> Iterator[tuple[Job, Result]]:
     """Re-order (job, result) pairs by `position(job)`, consecutive from `first`: for writers whose file
-    layout is positional (a demos file names its episodes demo_0, demo_1, ...). Results that arrive early
-    wait in memory; with jobs submitted in order, that is at most a few."""
+    layout is positional (a demos file names its episodes demo_0, demo_1, ...). A result that arrives
+    before an earlier one waits in memory until that one is written; if the run stops first, it is lost
+    and recomputed on resume."""
     waiting: dict[int, tuple[Job, Result]] = {}
     expected = first
     for job, result in results:
@@ -108,11 +178,3 @@ def in_order(results: Iterable[tuple[Job, Result]], position: Callable[[Job], in
         while expected in waiting:
             yield waiting.pop(expected)
             expected += 1
-    if waiting:
-        raise RuntimeError(f"jobs at positions {sorted(waiting)} finished but position {expected} never did")
-
-
-def _close(worker: Any) -> None:
-    close = getattr(worker, "close", None)
-    if callable(close):
-        close()

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -87,8 +86,9 @@ def parse_indices(text: str | None, flag: str) -> list[int] | None:
 
 
 def _workers_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--workers", type=int, default=1,
-                   help="processes running episodes side by side (e.g. the number of cores); the results do not depend on it")
+    from base_suites.parallel import add_workers_argument  # light: no simulator, no torch
+
+    add_workers_argument(p)
 
 
 def _demos_args(p: argparse.ArgumentParser) -> None:
@@ -391,8 +391,9 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy-epochs", type=int, default=QUICKSTART.policy_epochs)
     p.add_argument("--episodes", type=int, default=QUICKSTART.episodes)
     p.add_argument("--seed", type=int, default=QUICKSTART.seed)
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                   help="processes running episodes side by side (default: one per core); the results do not depend on it")
+    from base_suites.parallel import add_workers_argument, available_cores
+
+    add_workers_argument(p, default=available_cores())
 
 
 @command("quickstart", "the whole chain on one task at small sizes: demos -> annotate -> critic -> policy -> eval -> report")(_quickstart_args)

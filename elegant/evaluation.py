@@ -240,11 +240,12 @@ def evaluate(
                           config, str(out))
     with tqdm(total=len(indices) * int(episodes), initial=len(indices) * int(episodes) - len(jobs),
               desc=f"eval {mode}", unit="ep", disable=not progress) as bar:
-        for _, record in run_jobs(make_worker, jobs, workers):
-            log.append(record)
-            bar.update(1)
-            bar.set_postfix(success=f"{np.mean([r['success'] for r in log.records]):.2f}",
-                            esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}")
+        with run_jobs(make_worker, jobs, workers) as results:
+            for _, record in results:
+                log.append(record)
+                bar.update(1)
+                bar.set_postfix(success=f"{np.mean([r['success'] for r in log.records]):.2f}",
+                                esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}")
     records = run_records(log.records, config)
     summary = {"config": config, **summarize(records)}
     atomic_write(out / "summary.json", json.dumps(summary, indent=2))

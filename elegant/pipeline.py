@@ -17,6 +17,7 @@ from typing import Any
 
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
 from base_suites.errors import UserInputError
+from base_suites.parallel import add_workers_argument
 
 MODES = ("base", "always", "jiti")
 
@@ -165,7 +166,7 @@ def add_chain_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy (and of the critic)")
     parser.add_argument("--max-steps", type=int, help="episode horizon (default: the suites')")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=1, help="processes running episodes side by side; the results do not depend on it")
+    add_workers_argument(parser)
 
 
 def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:

@@ -108,6 +108,17 @@ def test_a_run_on_two_workers_gives_the_serial_runs_episodes_traces_and_summary(
         {k: v for k, v in runs["full"].items() if k not in timing + ("per_task",)}
 
 
+def test_a_serial_run_resumed_on_two_workers_fills_its_gaps_as_a_fresh_run_would(runs, tmp_path):
+    gappy = tmp_path / "gappy"
+    shutil.copytree(runs["root"] / "full", gappy)
+    kept = [line for line in (gappy / "episodes.jsonl").read_text().splitlines() if json.loads(line)["episode"] != 0]
+    (gappy / "episodes.jsonl").write_text("".join(line + "\n" for line in kept))  # episode 1 done, 0 missing
+    run(gappy, episodes=3, resume=True, workers=2)  # runs episodes 0 and 2 side by side
+    fresh = run(tmp_path / "fresh", episodes=3)
+    assert untimed(sorted(records(gappy), key=lambda r: r["episode"])) == untimed(records(tmp_path / "fresh"))
+    assert json.loads((gappy / "summary.json").read_text())["esr"] == fresh["esr"]
+
+
 def test_a_policy_workers_cannot_receive_is_refused_before_any_episode(tmp_path):
     with pytest.raises(UserInputError, match="cannot be sent to worker processes"):
         evaluate(SUITE, [TASK], lambda obs: np.zeros(7), None, "base", 2, 0, tmp_path / "lambda", progress=False, max_steps=STEPS,

@@ -1,6 +1,8 @@
 """Episodes on worker processes (`base_suites.parallel`): the runner's contract with toy jobs, then the real
 collectors, whose files must not depend on the number of workers."""
 import os
+import time
+from functools import partial
 
 import h5py
 import numpy as np
@@ -10,30 +12,45 @@ from annotations import annotate_file
 from annotations.collect import collect_demos
 from base_suites import UserInputError
 from base_suites.parallel import check_workers, in_order, run_jobs
+from elegant.episode_log import run_records
 
 
 class Doubler:
-    """A worker that remembers which process it runs in and how many jobs it did (state kept between jobs)."""
+    """A worker that remembers which process it runs in and how many jobs it did (state kept between jobs);
+    with `marks` it leaves a file per job started, and with `pause` it takes that long per job."""
 
-    def __init__(self, fail_at=None):
-        self.fail_at, self.done = fail_at, 0
+    def __init__(self, fail_at=None, marks=None, pause=0.0):
+        self.fail_at, self.marks, self.pause, self.done = fail_at, marks, pause, 0
 
     def __call__(self, job):
+        if self.marks:
+            open(os.path.join(self.marks, str(job)), "w").close()
+        time.sleep(self.pause)
         if job == self.fail_at:
             raise UserInputError(f"job {job} is bad")
         self.done += 1
         return job * 2, os.getpid(), self.done
 
 
+class BrokenFactory:
+    def __init__(self):
+        raise UserInputError("policy/: no such directory")
+
+
+def results_of(factory, jobs, workers):
+    with run_jobs(factory, jobs, workers) as results:
+        return list(results)
+
+
 def test_one_worker_runs_in_this_process_in_order_and_keeps_its_state():
-    results = list(run_jobs(Doubler, [3, 1, 2], workers=1))
+    results = results_of(Doubler, [3, 1, 2], workers=1)
     assert [(job, value) for job, (value, _, _) in results] == [(3, 6), (1, 2), (2, 4)]
     assert {pid for _, (_, pid, _) in results} == {os.getpid()}
     assert [done for _, (_, _, done) in results] == [1, 2, 3]
 
 
 def test_two_workers_give_every_result_from_other_processes():
-    results = dict(run_jobs(Doubler, list(range(8)), workers=2))
+    results = dict(results_of(Doubler, list(range(8)), workers=2))
     assert {job: value for job, (value, _, _) in results.items()} == {j: 2 * j for j in range(8)}
     pids = {pid for _, pid, _ in results.values()}
     assert os.getpid() not in pids and 1 <= len(pids) <= 2
@@ -43,27 +60,47 @@ def test_two_workers_give_every_result_from_other_processes():
         assert counts == list(range(1, len(counts) + 1))
 
 
-def test_a_failing_job_raises_its_error_in_the_parent():
-    from functools import partial
-
+def test_errors_in_a_job_or_in_building_a_worker_reach_the_caller_as_they_were_raised():
     with pytest.raises(UserInputError, match="job 2 is bad"):
-        list(run_jobs(partial(Doubler, fail_at=2), list(range(6)), workers=2))
+        results_of(partial(Doubler, fail_at=2), list(range(6)), workers=2)
+    for workers in (1, 2):
+        with pytest.raises(UserInputError, match="policy/: no such directory"):
+            results_of(BrokenFactory, [0, 1], workers=workers)
+
+
+def test_leaving_the_run_early_stops_the_workers(tmp_path):
+    jobs = list(range(40))
+    with run_jobs(partial(Doubler, marks=str(tmp_path), pause=0.2), jobs, workers=2) as results:
+        for _ in results:
+            break
+    started = set(os.listdir(tmp_path))
+    time.sleep(1.0)
+    assert set(os.listdir(tmp_path)) == started  # nothing runs after the context is left
+    assert len(started) < 10
 
 
 def test_worker_count_and_unpicklable_factories_are_refused():
     with pytest.raises(UserInputError, match="--workers must be >= 1"):
         check_workers(0)
     with pytest.raises(UserInputError, match="cannot be sent to worker processes"):
-        list(run_jobs(lambda: Doubler(), [1, 2], workers=2))
-    assert list(run_jobs(lambda: Doubler(), [1], workers=1))[0][1][0] == 2  # one worker needs no pickling
+        results_of(lambda: Doubler(), [1, 2], workers=2)
+    assert results_of(lambda: Doubler(), [1], workers=2)[0][1][0] == 2  # a single job runs here: no pickling
 
 
 def test_in_order_releases_results_by_position_from_the_first_missing_one():
     arrived = [(2, "c"), (0, "a"), (3, "d"), (1, "b")]
     assert [job for job, _ in in_order(arrived, lambda job: job)] == [0, 1, 2, 3]
     assert [job for job, _ in in_order([(5, "x"), (4, "y")], lambda job: job, first=4)] == [4, 5]
-    with pytest.raises(RuntimeError, match="position 1 never did"):
-        list(in_order([(0, "a"), (2, "c")], lambda job: job))
+    assert [job for job, _ in in_order([(0, "a"), (2, "c")], lambda job: job)] == [0]  # 2 waits for 1, which never came
+
+
+def test_a_runs_records_count_in_task_then_episode_order_whatever_order_they_finished_in():
+    config = {"suite": "libero_goal", "tasks": [4, 1], "episodes": 2}
+    finished = [{"task": "libero_goal/1", "episode": 1}, {"task": "libero_goal/4", "episode": 1},
+                {"task": "libero_goal/1", "episode": 0}, {"task": "libero_goal/4", "episode": 2},
+                {"task": "libero_goal/4", "episode": 0}, {"task": "libero_goal/7", "episode": 0}]
+    assert [(r["task"], r["episode"]) for r in run_records(finished, config)] == \
+        [("libero_goal/4", 0), ("libero_goal/4", 1), ("libero_goal/1", 0), ("libero_goal/1", 1)]
 
 
 def _contents(path):

@@ -51,9 +51,12 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
         collect_rollouts(SUITE, [TASK], Lower(), 2, str(tmp_path / "cut.hdf5"), explore=0.3, trust_radius=0.3, init_states=INITS,
                          seed=4, max_steps=STEPS, progress=False, resume=True)
     resumed = collect_into(tmp_path / "cut.hdf5", resume=True)
-    with DemoFile(summary["out"]) as a, DemoFile(resumed["out"]) as b:
-        for da, db in zip(a, b, strict=True):
-            assert np.array_equal(da.actions, db.actions) and np.array_equal(da.obs, db.obs)
+    parallel = collect_into(tmp_path / "parallel.hdf5", workers=2)  # each episode on its own worker process
+    for other in (resumed, parallel):
+        with DemoFile(summary["out"]) as a, DemoFile(other["out"]) as b:
+            for da, db in zip(a, b, strict=True):
+                assert np.array_equal(da.actions, db.actions) and np.array_equal(da.obs, db.obs)
+                assert da.attrs["explored_steps"] == db.attrs["explored_steps"]
 
     annotated = annotate_file(summary["out"], str(tmp_path / "annotated.hdf5"), progress=False)
     assert annotated["demos"] == 2
