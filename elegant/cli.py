@@ -400,8 +400,10 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
 def _quickstart(args: argparse.Namespace) -> dict:
     from elegant.pipeline import quickstart
 
-    return quickstart(args.out, suites=(args.suite,), tasks=(args.task,), demos=args.demos, critic_steps=args.critic_steps,
-                      policy_epochs=args.policy_epochs, episodes=args.episodes, seed=args.seed, workers=args.workers)
+    result = quickstart(args.out, suites=(args.suite,), tasks=(args.task,), demos=args.demos, critic_steps=args.critic_steps,
+                        policy_epochs=args.policy_epochs, episodes=args.episodes, seed=args.seed, workers=args.workers)
+    # one suite and one task: the per-suite and per-task rows repeat the pooled numbers
+    return {k: v for k, v in result.items() if k not in ("per_suite", "per_task")}
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -147,3 +147,21 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
     with pytest.raises(UserInputError, match="chain candidates must be >= 2"):
         run_chain(str(tmp_path / "other"), replace(TINY, candidates=1), progress=False)
     assert not os.path.exists(tmp_path / "other")
+
+
+def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(monkeypatch, tmp_path):
+    """`elegant quickstart` hands the recipe (chunked policy, branch rollouts, outcome critic, steered JITI)
+    to the chain with the flags it was given, on one worker per core unless told otherwise."""
+    from base_suites.parallel import available_cores
+    from elegant import cli, pipeline
+
+    calls = []
+    monkeypatch.setattr(pipeline, "run_chain", lambda out, config, progress, workers: calls.append((out, config, workers)) or {})
+    assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--task", "3", "--episodes", "4"]) == 0
+    assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--workers", "1"]) == 0
+    (out, config, workers), (_, _, one) = calls
+    assert out == str(tmp_path / "qs") and (workers, one) == (available_cores(), 1)
+    assert config.tasks == (3,) and config.episodes == 4 and config.suites == pipeline.QUICKSTART.suites
+    assert replace(config, tasks=pipeline.QUICKSTART.tasks, episodes=pipeline.QUICKSTART.episodes) == pipeline.QUICKSTART
+    config.validate()  # the recipe passes the chain's own checks (rollouts for the explored fraction, a steered warm-up)
+    assert config.critic_rollouts > 0 and config.warmup == "steer" and config.chunk > 1
