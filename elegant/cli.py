@@ -355,6 +355,7 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-steps", type=int, help="episode horizon (default: the suite's)")
     p.add_argument("--modes", type=int, help="components of the policy's GMM head (default 16; runs from before this option used 5)")
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
+    _workers_arg(p)
 
 
 @command("lifelong", "LIBERO's lifelong protocol (sequential fine-tuning): FWT, NBT, AUC from success and elegant success")(_lifelong_args)
@@ -362,7 +363,7 @@ def _lifelong(args: argparse.Namespace) -> dict:
     from elegant.lifelong import run_lifelong
 
     result = run_lifelong(args.suite, _task_list(args.tasks), args.data, args.out, epochs=args.epochs, eval_every=args.eval_every,
-                          episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, resume=args.resume,
+                          episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, resume=args.resume, workers=args.workers,
                           **({} if args.modes is None else {"modes": args.modes}))
     return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
 

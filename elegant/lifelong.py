@@ -47,6 +47,7 @@ from annotations.format import task_key
 from base_suites import get_task
 from base_suites.atomic import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.errors import UserInputError
+from base_suites.parallel import check_workers
 from elegant.evaluation import evaluate
 from elegant.metrics import lifelong_metrics
 from elegant.policies.bc_data import load_demos
@@ -65,6 +66,7 @@ class _Run:
     paths: list[str]
     features: BCFeatures
     status: Callable[[str], None]
+    workers: int = 1  # processes per evaluation (a run control, not a setting: results do not depend on it)
     kept: list[str] = field(default_factory=list)
 
     def stage_dir(self, k: int) -> str:
@@ -129,7 +131,7 @@ def _evaluate(run: _Run, policy: str, tasks: list[int], run_dir: Path) -> dict[s
     if summary.exists():
         return read_json_file(summary, "evaluation summary")
     return evaluate(cfg["suite"], tasks, policy, None, mode="base", episodes=cfg["episodes"], seed=cfg["seed"], out=run_dir,
-                    resume=True, progress=False, max_steps=cfg["max_steps"])
+                    resume=True, progress=False, max_steps=cfg["max_steps"], workers=run.workers)
 
 
 def _rates(summary: dict[str, Any], key: str) -> tuple[float, float]:
@@ -176,6 +178,7 @@ def run_lifelong(
     modes: int = DEFAULT_MODES,
     progress: bool = True,
     resume: bool = False,
+    workers: int = 1,
 ) -> dict[str, Any]:
     """Learn `tasks` of `suite` in order with sequential fine-tuning and measure LIBERO's lifelong metrics.
 
@@ -183,10 +186,12 @@ def run_lifelong(
     from the demos with its task key. `epochs` per task, evaluating the current task every `eval_every`
     epochs (`epochs` must be a multiple) and before training on it; `episodes` per evaluation, episode
     starts from `seed`; `max_steps` caps each episode (default: the suite's horizon); `modes`: the policy's
-    mixture components (runs from before it was a setting used 5). Writes OUT as the
+    mixture components (runs from before it was a setting used 5); `workers`: processes running each
+    evaluation's episodes (`elegant.evaluate`). Writes OUT as the
     module docstring describes and returns the content of OUT/lifelong.json.
     """
     _positive(epochs=epochs, eval_every=eval_every, episodes=episodes, modes=modes, **({} if max_steps is None else {"max_steps": max_steps}))
+    workers = check_workers(workers)
     if epochs % eval_every:
         raise UserInputError(f"lifelong: epochs ({epochs}) must be a multiple of eval_every ({eval_every}), "
                              "so that the last epoch is evaluated like LIBERO's 50 epochs every 5")
@@ -211,7 +216,7 @@ def run_lifelong(
     S = np.full((2, K, K), np.nan)
     kept_epochs = []
     with tqdm(total=K, desc="lifelong", unit="task", disable=not progress) as bar:
-        run = _Run(out, config, paths, features, bar.set_postfix_str)
+        run = _Run(out, config, paths, features, bar.set_postfix_str, workers)
         for k in range(K):
             kept_epochs.append(_learn_and_measure(run, k, C, S))
             bar.update(1)

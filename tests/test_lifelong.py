@@ -117,11 +117,13 @@ def test_refusals(run, demos, tmp_path):
         run_lifelong(SUITE, TASKS, [demos], tmp_path / "c", **{**SETTINGS, "eval_every": 3})
     with pytest.raises(UserInputError, match="listed more than once"):
         run_lifelong(SUITE, [1, 1], [demos], tmp_path / "d", **SETTINGS)
+    with pytest.raises(UserInputError, match="--workers must be >= 1"):
+        run_lifelong(SUITE, TASKS, [demos], tmp_path / "e", workers=0, **SETTINGS)
     with pytest.raises(UserInputError, match="not empty"):
         run_lifelong(SUITE, TASKS, [demos], out, **SETTINGS)
     with pytest.raises(UserInputError, match="field 'episodes'"):
         run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "episodes": 2})
-    assert not any((tmp_path / d).exists() for d in "abcd")  # refused before any work
+    assert not any((tmp_path / d).exists() for d in "abcde")  # refused before any work
 
 
 def test_cli_refuses_in_one_line(demos, tmp_path, capsys):
@@ -129,6 +131,15 @@ def test_cli_refuses_in_one_line(demos, tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "eval_every must be a positive integer" in err
+
+
+def test_cli_hands_the_worker_count_to_the_evaluations(demos, tmp_path, monkeypatch):
+    import elegant.lifelong
+
+    seen = {}
+    monkeypatch.setattr(elegant.lifelong, "run_lifelong", lambda *a, **kw: seen.update(kw) or {"metrics": {}, "metrics_elegant": {}})
+    assert main(["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "w"), "--workers", "2"]) == 0
+    assert seen["workers"] == 2
 
 
 def test_a_run_from_before_the_mixture_size_setting_resumes_with_its_five_components(demos, tmp_path):
