@@ -21,7 +21,7 @@ from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
 from base_suites.atomic import changed_fields
 from base_suites.errors import UserInputError
-from base_suites.parallel import check_workers, in_order, run_jobs
+from base_suites.parallel import check_picklable, check_workers, in_order, run_jobs
 from base_suites.seeds import derive_seed
 
 
@@ -46,7 +46,11 @@ def dataset_attrs(env: LiberoEnv, suite: str, tasks: Sequence[int]) -> dict[str,
 
 
 class EpisodeSource(Protocol):
-    """What `collect_episodes` rolls out: per task, an actor for its episodes and where each one starts."""
+    """What `collect_episodes` rolls out: per task, an actor for its episodes and where each one starts.
+
+    Each worker process builds its own source from the factory it is given and sees only some of the
+    episodes, in any order, so an episode must depend on its task and index alone: `begin` restarts all
+    of the actor's randomness from them, and `for_task` may be called again for a task seen before."""
 
     def for_task(self, env: LiberoEnv, spec: Any) -> None:
         """Get ready for the episodes of one task (its env is built)."""
@@ -91,12 +95,15 @@ def collect_episodes(
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
     workers = check_workers(workers)
+    if workers > 1:
+        check_picklable(make_source, "the policy or expert of these episodes")
     specs = task_specs(suite, tasks)
     collection = json.loads(json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings}))
     writer = DemoWriter(out, _file_attrs(out, resume, suite, specs, seed, horizon, perturbation, collection), resume=resume)
     bar = None
     try:
-        changed = changed_fields(writer.attrs.get("collection"), collection, ignore=("episodes",))
+        # the episode count too: demo_<i> is episode i mod episodes of task i // episodes
+        changed = changed_fields(writer.attrs.get("collection"), collection)
         if changed:
             raise UserInputError(f"{out}.partial: cannot resume with different {', '.join(k for k, _, _ in changed)}; "
                                  "delete it or collect with its settings")

@@ -11,12 +11,14 @@ A worker is built once per process by a picklable factory (`make_worker()` retur
 job -> result) and keeps its env and policy between jobs, as a serial loop would: building an env costs
 about 2.5 s. It is built at its first job, so an error in building it reaches the caller like any job's
 error (a user mistake as one line). With `workers` 1 the same worker runs in this process, so both
-paths execute one piece of code. Every path runs with one BLAS / OpenMP / torch thread: the workers
-already fill the cores, and a reduction split over another number of threads could round differently
-and flip a sampled action. Worker processes are started with "spawn" (MuJoCo and torch threads do not
+paths execute one piece of code. Every path runs with one BLAS thread and one torch thread: the
+workers already fill the cores, and a reduction split over another number of threads could round
+differently and flip a sampled action. Worker processes are started with "spawn" (MuJoCo and torch threads do not
 survive a fork), ignore Ctrl-C (the parent stops them), and are terminated when the run stops early
 (an error, a break, Ctrl-C); a worker that dies (a crash, the OOM killer) stops the run with
-`BrokenProcessPool` instead of leaving it waiting.
+`BrokenProcessPool` instead of leaving it waiting. When jobs fail, the error raised is that of the
+first failing job in submission order, after the results of every job before it, as a serial run
+would give them.
 """
 from __future__ import annotations
 
@@ -26,8 +28,9 @@ import os
 import pickle
 import signal
 import sys
+import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
@@ -91,18 +94,29 @@ def _limit_torch_threads() -> None:
 
 
 def _start_worker(make_worker: Callable[[], Callable[[Any], Any]]) -> None:
+    from threadpoolctl import threadpool_limits
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the parent, which terminates the pool
+    threadpool_limits(1, user_api="blas")  # the BLAS loaded while the factory was unpickled
     global _factory
     _factory = make_worker
 
 
-def _run_job(numbered: tuple[int, Any]) -> tuple[int, Any]:
+class RemoteTraceback(Exception):
+    """Where a worker's exception was raised: its traceback, chained as the cause of the re-raised error."""
+
+
+def _run_job(numbered: tuple[int, Any]) -> tuple[int, bool, Any]:
+    """(position, True, result), or (position, False, (exception, its formatted traceback))."""
     global _worker
-    if _worker is None:
-        assert _factory is not None, "worker process used before _start_worker"
-        _worker = _factory()
-    _limit_torch_threads()
-    return numbered[0], _worker(numbered[1])
+    try:
+        if _worker is None:
+            assert _factory is not None, "worker process used before _start_worker"
+            _worker = _factory()
+        _limit_torch_threads()
+        return numbered[0], True, _worker(numbered[1])
+    except Exception as exc:
+        return numbered[0], False, (exc, traceback.format_exc())
 
 
 @contextmanager
@@ -124,11 +138,12 @@ def run_jobs(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[
             serial.close()
         return
     check_picklable(make_worker, "the worker factory")
-    with _spawned_with_one_thread():
+    with _spawned_with_one_thread():  # processes start at submit: all of them inside
         pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"),
                                    initializer=_start_worker, initargs=(make_worker,))
+        futures = {pool.submit(_run_job, (n, job)): n for n, job in enumerate(jobs)}
     try:
-        yield _as_finished(pool, jobs)
+        yield _as_finished(futures, jobs)
     finally:
         processes = list((getattr(pool, "_processes", None) or {}).values())  # shutdown forgets them
         pool.shutdown(wait=False, cancel_futures=True)
@@ -137,11 +152,25 @@ def run_jobs(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[
         pool.shutdown(wait=True)
 
 
-def _as_finished(pool: ProcessPoolExecutor, jobs: Sequence[Job]) -> Iterator[tuple[Job, Result]]:
-    numbered = {pool.submit(_run_job, (n, job)): n for n, job in enumerate(jobs)}
-    for future in as_completed(numbered):
-        n, result = future.result()
-        yield jobs[n], result
+def _as_finished(futures: dict[Future, int], jobs: Sequence[Job]) -> Iterator[tuple[Job, Result]]:
+    """Results as they finish; after a failure, only those of earlier jobs (later ones are cancelled or
+    dropped), then the earliest failure."""
+    failed: tuple[int, BaseException, str] | None = None
+    for future in as_completed(futures):
+        if future.cancelled():
+            continue
+        n, ok, value = future.result()
+        if not ok:
+            if failed is None or n < failed[0]:
+                failed = (n, *value)
+                for other, m in futures.items():
+                    if m > n:
+                        other.cancel()
+        elif failed is None or n < failed[0]:
+            yield jobs[n], value
+    if failed is not None:
+        _, exc, remote = failed
+        raise exc from RemoteTraceback(remote)
 
 
 def _serial(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job]) -> Iterator[tuple[Job, Result]]:

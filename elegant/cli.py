@@ -85,10 +85,10 @@ def parse_indices(text: str | None, flag: str) -> list[int] | None:
     return out
 
 
-def _workers_arg(p: argparse.ArgumentParser) -> None:
+def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
     from base_suites.parallel import add_workers_argument  # light: no simulator, no torch
 
-    add_workers_argument(p)
+    add_workers_argument(p, default)
 
 
 def _demos_args(p: argparse.ArgumentParser) -> None:
@@ -392,12 +392,13 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy-epochs", type=int, default=QUICKSTART.policy_epochs)
     p.add_argument("--episodes", type=int, default=QUICKSTART.episodes)
     p.add_argument("--seed", type=int, default=QUICKSTART.seed)
-    from base_suites.parallel import add_workers_argument, available_cores
+    from base_suites.parallel import available_cores
 
-    add_workers_argument(p, default=available_cores())
+    _workers_arg(p, default=available_cores())
 
 
-@command("quickstart", "the whole chain on one task at small sizes: demos -> annotate -> critic -> policy -> eval -> report")(_quickstart_args)
+@command("quickstart", "JITI's recipe on one task at small sizes: demos -> annotate -> policy -> branch rollouts -> critic -> "
+                       "eval base and JITI -> report")(_quickstart_args)
 def _quickstart(args: argparse.Namespace) -> dict:
     from elegant.pipeline import quickstart
 

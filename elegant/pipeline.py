@@ -26,6 +26,9 @@ MODES = ("base", "always", "jiti")
 class ChainConfig:
     """Which tasks, how much data and training, which JITI modes to compare.
 
+    The defaults are the chain's first settings, kept so that chain directories written before a field
+    existed resume as they ran; the quickstart (`QUICKSTART`) and the benchmark's recipe set their own.
+
     `tasks` are indices applied to every suite (None: all of each suite's tasks). `critic_gamma` None keeps the
     annotation's discount; 0.9 and a CQL weight of 1 ranked held-out actions better than 0.99 and 5 on
     libero_object/0 (AUROC 0.57 -> 0.64) and keep Q within its feasible range at these data sizes.
@@ -186,11 +189,12 @@ def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
 # from the explored decisions), and JITI with the drop trigger and a steered warm-up, evaluated on the
 # other 25 starts. 100 demos and 300 epochs because the base policy must be worth steering: from 50
 # demos and 150 epochs the one-task policy succeeded in 8% of episodes (28% with chunks of 4), from 100
-# and 300 in 76%. About 11 minutes on 2 cores.
-RECIPE_ROLLOUT_STEPS = tuple(range(8, 129, 8))
+# and 300 in 76%. About 11 minutes on 2 cores. Branch rollouts cycle through the starts first, then the
+# branch points (`elegant.rollouts.branch_step`): 50 rollouts from 25 starts branch at decisions 8 and 16,
+# the first two points of the benchmark's list (whose 100 rollouts per task use its first four).
 QUICKSTART = ChainConfig(
     demos=100, chunk=8, policy_epochs=300, policy_successful_only=True, policy_obs_noise=0.1,
-    critic_rollouts=50, rollout_explore_at=RECIPE_ROLLOUT_STEPS, critic_steps=4000, critic_gamma=0.995, critic_cql_weight=0.2,
+    critic_rollouts=50, rollout_explore_at=(8, 16), critic_steps=4000, critic_gamma=0.995, critic_cql_weight=0.2,
     critic_reward="elegant", critic_backup="dataset", critic_hidden=(64, 64), critic_weight_decay=0.1, critic_mc_weight=10.0,
     critic_value_loss="bce", critic_explored_fraction=0.5,
     trust_radius=1.5, threshold=2.0, threshold_mode="std", window=4, trigger="drop", warmup="steer", episodes=25,
@@ -242,8 +246,8 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     depend on it), so a chain may be continued with another count.
 
     Returns {mode: pooled success_rate, esr, interventions_per_episode}, per_suite {suite: {mode: the
-    same}}, per_task {suite: {mode: the run summary's per-task rows}}, report (the comparison markdown),
-    runs ({mode: {suite: run directory}}).
+    same}}, per_task {suite: {mode: the run summary's per-task rows}}, report (the path of the comparison
+    markdown), runs ({mode: {suite: run directory}}).
     """
     from annotations import annotate_file
     from annotations.collect import collect_demos

@@ -6,7 +6,7 @@ from scipy.spatial import ConvexHull, Delaunay
 
 import annotations.collect as collect
 from annotations import DemoFile
-from base_suites import make_env
+from base_suites import UserInputError, make_env
 from base_suites.experts import ScriptedExpert, articulated, plan_skills
 from base_suites.experts.control import finger_axis
 from base_suites.experts import skills
@@ -395,6 +395,9 @@ def test_demos_file_layout_and_interrupted_resume_matches_uninterrupted(tmp_path
         assert {"knobs", "expert_version", "init_state_index"} <= set(demo.attrs)
     interrupted_at_second_episode(monkeypatch, lambda: _collect(tmp_path, "resumed.hdf5"))
     assert (tmp_path / "resumed.hdf5.partial").exists() and not (tmp_path / "resumed.hdf5").exists()
+    with pytest.raises(UserInputError, match="cannot resume with different episodes"):  # demo_<i>'s task depends on the count
+        collect.collect_demos("libero_object", [0], 3, str(tmp_path / "resumed.hdf5"), quality={"tilt": 0.5}, seed=4, progress=False,
+                              resume=True)
     resumed, _ = _collect(tmp_path, "resumed.hdf5", resume=True)
     with DemoFile(full) as a, DemoFile(resumed) as b:
         assert len(a) == len(b) == 2

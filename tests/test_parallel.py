@@ -19,14 +19,14 @@ class Doubler:
     """A worker that remembers which process it runs in and how many jobs it did (state kept between jobs);
     with `marks` it leaves a file per job started, and with `pause` it takes that long per job."""
 
-    def __init__(self, fail_at=None, marks=None, pause=0.0):
-        self.fail_at, self.marks, self.pause, self.done = fail_at, marks, pause, 0
+    def __init__(self, fail_at=(), marks=None, pause=0.0, slow=()):
+        self.fail_at, self.marks, self.pause, self.slow, self.done = fail_at, marks, pause, slow, 0
 
     def __call__(self, job):
         if self.marks:
             open(os.path.join(self.marks, str(job)), "w").close()
-        time.sleep(self.pause)
-        if job == self.fail_at:
+        time.sleep(0.5 if job in self.slow else self.pause)
+        if job in self.fail_at:
             raise UserInputError(f"job {job} is bad")
         self.done += 1
         return job * 2, os.getpid(), self.done
@@ -62,10 +62,21 @@ def test_two_workers_give_every_result_from_other_processes():
 
 def test_errors_in_a_job_or_in_building_a_worker_reach_the_caller_as_they_were_raised():
     with pytest.raises(UserInputError, match="job 2 is bad"):
-        results_of(partial(Doubler, fail_at=2), list(range(6)), workers=2)
+        results_of(partial(Doubler, fail_at=(2,)), list(range(6)), workers=2)
     for workers in (1, 2):
         with pytest.raises(UserInputError, match="policy/: no such directory"):
             results_of(BrokenFactory, [0, 1], workers=workers)
+
+
+def test_when_jobs_fail_the_first_failure_is_raised_after_every_earlier_result():
+    """Job 5 fails first in time, job 2 (slow) later: as a serial run, the caller gets jobs 0 and 1 and
+    then job 2's error, whatever the timing, and the worker's traceback as its cause."""
+    seen = []
+    with pytest.raises(UserInputError, match="job 2 is bad") as raised:
+        with run_jobs(partial(Doubler, fail_at=(2, 5), slow=(2,)), list(range(8)), workers=2) as results:
+            seen.extend(job for job, _ in results)
+    assert {0, 1} <= set(seen) and 2 not in seen and 5 not in seen
+    assert "job 2 is bad" in str(raised.value.__cause__)  # the remote traceback
 
 
 def test_leaving_the_run_early_stops_the_workers(tmp_path):
