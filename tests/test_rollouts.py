@@ -7,7 +7,7 @@ import pytest
 from annotations import CRITERIA, DemoFile, annotate_file
 from base_suites import UserInputError, make_env
 from elegant.evaluation import episode_start
-from elegant.rollouts import branch_step, collect_rollouts
+from elegant.rollouts import branch_points_reached, branch_step, collect_rollouts
 from conftest import interrupted_at_second_episode
 from itc import ITCMonitor
 
@@ -81,7 +81,7 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
     env.close()
 
 
-def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_path):
+def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_path, capsys):
     # 3 starts, points [2, 5]: episodes 0-2 branch at step 2, 3-5 at step 5, each start once per point
     summary = collect_rollouts(SUITE, [TASK], Lower(), 6, str(tmp_path / "branches.hdf5"), explore_at=[2, 5], trust_radius=0.3,
                                init_states=INITS, seed=4, max_steps=STEPS, progress=False)
@@ -96,8 +96,20 @@ def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_
         assert early.attrs["fixture_layout"] == late.attrs["fixture_layout"]
         np.testing.assert_array_equal(early.states[:3], late.states[:3])  # the same scene up to the branch at step 2
         assert early.actions[2][0] != 0.0 and late.actions[2][0] == 0.0 and late.actions[5][0] != 0.0
+    assert "warning" not in capsys.readouterr().err  # 6 episodes reach both points of 3 starts
     with pytest.raises(UserInputError, match="not both"):
         collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), explore=0.1, explore_at=[2], progress=False)
+
+
+def test_branch_points_no_episode_reaches_are_named(tmp_path, capsys):
+    assert branch_points_reached([2, 5, 9], 4, 3) == [2, 5] and branch_points_reached([2, 5, 9], 9, 3) == [2, 5, 9]
+    # 2 episodes from 3 starts reach only the first point; the file is still written, with one warning line
+    summary = collect_rollouts(SUITE, [TASK], Lower(), 2, str(tmp_path / "short.hdf5"), explore_at=[2, 5], trust_radius=0.3,
+                               init_states=INITS, seed=4, max_steps=STEPS, progress=False)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["rollouts: warning: 2 episodes per task branch only at steps [2] of --explore-at [2, 5]; "
+                   "6 would branch every start at every point"]
+    assert summary["episodes"] == 2
 
 
 def test_nudged_rollouts_start_apart_and_replay_from_their_records(tmp_path):
