@@ -93,7 +93,7 @@ def branch_points_reached(explore_at: Sequence[int], episodes: int, n_starts: in
     """The points of `explore_at` that some of `episodes` branch at. Starts cycle first, so with fewer than
     n_starts * len(explore_at) episodes the later points are never reached: the recipe's 100 rollouts from
     25 starts branched at 4 of its 16 points for six sessions, and critics that also saw branches later in
-    the episode gained 13 points of ESR instead of 7 (benchmarks/RESULTS.md, session 32)."""
+    the episode gained 13 points of ESR on libero_object instead of 7 (benchmarks/RESULTS.md, session 32)."""
     return sorted({branch_step(explore_at, e, n_starts) for e in range(episodes)})
 
 
