@@ -33,7 +33,6 @@ from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
 from base_suites.errors import UserInputError
-from base_suites.parallel import check_picklable
 from base_suites.seeds import derive_seed
 from elegant.evaluation import check_init_states, episode_start, open_policy
 from elegant.jiti import JITI
@@ -50,7 +49,7 @@ class _PolicySource:
     def for_task(self, env: LiberoEnv, spec: Any) -> None:
         """One JITI serves all tasks (`collect_rollouts` checked the init states up front); only the number of
         starts, which paces the branch points, is per task."""
-        self.n_starts = len(self.init_states) if self.init_states is not None else spec.n_init_states
+        self.n_starts = _n_starts(spec, self.init_states)
 
     def start(self, spec: Any, episode: int) -> tuple[int, int]:
         """Where `elegant eval` episode `episode` starts; with `explore_at`, every branch of a start takes its
@@ -80,6 +79,11 @@ def _policy_source(policy: Any, agent_settings: Mapping[str, Any], suite: str, s
     """The rollouts' actor, built from picklable inputs (a worker process builds its own)."""
     agent = JITI(open_policy(policy), None, seed=seed, **agent_settings)
     return _PolicySource(agent, suite, seed, init_states, policy_name, explore_at)
+
+
+def _n_starts(spec: Any, init_states: Sequence[int] | None) -> int:
+    """How many starts a task's rollouts cycle through: the chosen init states, or all the task has."""
+    return len(init_states) if init_states is not None else spec.n_init_states
 
 
 def branch_step(explore_at: Sequence[int], episode: int, n_starts: int) -> int:
@@ -136,7 +140,8 @@ def collect_rollouts(
 
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
-    for spec in task_specs(suite, tasks):
+    specs = task_specs(suite, tasks)
+    for spec in specs:
         check_init_states(init_states, spec.n_init_states)  # before any env or file is made
     if explore_at is not None:
         if explore > 0:
@@ -144,15 +149,12 @@ def collect_rollouts(
         if not explore_at or min(explore_at) < 0:
             raise UserInputError(f"rollouts: --explore-at needs decision steps >= 0, got {list(explore_at)}")
         explore_at = [int(t) for t in explore_at]
-        _warn_unreached_points(explore_at, episodes, [len(init_states) if init_states is not None else spec.n_init_states
-                                                      for spec in task_specs(suite, tasks)])
+        _warn_unreached_points(explore_at, episodes, [_n_starts(spec, init_states) for spec in specs])
     agent_settings = {"mode": "random" if explore > 0 or explore_at is not None else "base", "random_rate": explore,
                       "trust_radius": trust_radius, "n_candidates": n_candidates}
     name = policy if isinstance(policy, str) else type(policy).__name__
     make_source = partial(_policy_source, policy, agent_settings, suite, seed, None if init_states is None else list(init_states), name,
                           explore_at)
-    if workers > 1:
-        check_picklable(make_source, "the policy")
     source = make_source()  # here for the settings it records, and to refuse a bad policy before any env is built
     settings = {"policy": name, "rollout": source.agent.config(), "init_states": source.init_states, "max_steps": max_steps}
     if explore_at is not None:  # only then: files collected before it existed still resume
