@@ -314,7 +314,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
                    help="mode jiti: the first --window decisions, before a fluctuation can be measured, execute the base plan "
                         "(base, default) or the critic's choice (steer)")
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
-    p.add_argument("--gate", help="mode jiti: a file from `elegant gate`; JITI runs only on the tasks it enables, the others as the base policy")
+    p.add_argument("--gate", help="mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)")
     _workers_arg(p)
 
 
@@ -333,14 +333,17 @@ def _eval(args: argparse.Namespace) -> dict:
 def _gate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("base_run", help="a base-mode run on validation starts (e.g. --init-states 0-24)")
     p.add_argument("jiti_run", help="the JITI run to judge, on the same starts")
+    p.add_argument("--always", help="an `always` run on the same starts: a task may then re-rank every decision where that did best")
+    p.add_argument("--budget", type=float, default=0.4,
+                   help="with --always: the suite's interventions per episode at most this share of always's (default 0.4)")
     p.add_argument("--out", required=True, help="gate file (JSON) for elegant eval --gate")
 
 
-@command("gate", "enable JITI per task where, on validation starts, it made more episodes elegant than it spoiled")(_gate_args)
+@command("gate", "choose per task base, JITI (or always) by what, on validation starts, made more episodes elegant than it spoiled")(_gate_args)
 def _gate(args: argparse.Namespace) -> dict:
     from elegant.gate import write_gate
 
-    return write_gate(args.base_run, args.jiti_run, args.out)
+    return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, budget=args.budget)
 
 
 def _lifelong_args(p: argparse.ArgumentParser) -> None:

@@ -181,7 +181,7 @@ def evaluate(
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
     object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
     task, starting from `init_states` only (None: all shipped init states; see `episode_start`). `gate`:
-    a file from `elegant gate` (`elegant.gate`); the tasks it does not enable run in mode "base".
+    a file from `elegant gate` (`elegant.gate`) naming the mode each task runs in (base, jiti or always).
     `workers`: processes running episodes side by side (`base_suites.parallel`); the numbers do not
     depend on it, and with more than one the policy and critic must be directories or picklable.
 
@@ -201,14 +201,14 @@ def evaluate(
     for spec in specs:
         check_init_states(init_states, spec.n_init_states)
     indices = list(dict.fromkeys(spec.index for spec in specs))
-    enabled = None
+    task_modes = None
     if gate is not None:
         from elegant.gate import read_gate
 
         if mode != "jiti":
-            raise UserInputError(f"--gate chooses the tasks JITI runs on; mode {mode!r} has none to choose")
+            raise UserInputError(f"--gate chooses per task how JITI runs; mode {mode!r} has none to choose")
         chosen = None if init_states is None else sorted({int(i) for i in init_states})
-        enabled = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen)
+        task_modes = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen)
     workers = check_workers(workers)
     if workers > 1:
         check_picklable((policy, critic), "the policy or the critic")
@@ -226,14 +226,14 @@ def evaluate(
         "max_steps": max_steps,
         "obs": obs,
         "init_states": None if init_states is None else sorted({int(i) for i in init_states}),
-        **({} if enabled is None else {"gate": {"file": os.path.abspath(gate), "enabled": enabled}}),
+        **({} if task_modes is None else {"gate": {"file": os.path.abspath(gate), "modes": task_modes}}),
     }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     _prepare_run_dir(out, config, resume)
     log = EpisodeLog(out / "episodes.jsonl")
     done = log.done()
-    jobs = [EvalJob(index, e, mode if enabled is None or enabled[task_key(suite, index)] else "base")
+    jobs = [EvalJob(index, e, mode if task_modes is None else task_modes[task_key(suite, index)])
             for index in indices for e in range(int(episodes)) if (task_key(suite, index), e) not in done]
     # the agent built here serves a serial run; worker processes each build their own from the same inputs
     make_worker = partial(EpisodeRunner, agent if workers == 1 else partial(build_agent, policy, critic, mode, seed, settings),
@@ -255,8 +255,8 @@ def evaluate(
 
 @dataclass(frozen=True)
 class EvalJob:
-    """One episode to run: the task, the episode index and the mode it runs in (the run's mode, or "base"
-    on a task a gate leaves off)."""
+    """One episode to run: the task, the episode index and the mode it runs in (the run's mode, or the
+    one a gate chose for the task)."""
 
     task_index: int
     episode: int

@@ -10,6 +10,13 @@ enable JITI on a task only if it made more episodes elegant than it spoiled ther
 --gate gate.json` then runs the other tasks as the base policy, and refuses a gate validated on any of
 the evaluation's own starts.
 
+Some tasks need more than JITI's rare interventions: on libero_object/5 the base policy fails half its
+episodes mid-carry, where `always` (re-ranking every decision) rescues many and JITI's trigger few
+(session 31: `always` 78% ESR there, JITI 56%, base 44%). Given an `always` run on the same validation
+starts, the gate may choose `always` for such a task, within a budget on the suite's interventions
+(by default 40% of `always` on every task, issue 7's bound on JITI), so the suite stays a sparse
+intervener while the one task that needs constant steering gets it.
+
 Measured (benchmarks/RESULTS.md, sessions 25 and 28): with the drop trigger alone, 50 validation
 episodes per task from the critic's rollout starts did not predict the held-out effect on libero_goal
 or libero_object (they would have switched JITI off on libero_goal/4, +14 ESR held out). With the
@@ -31,7 +38,8 @@ from base_suites import UserInputError
 from base_suites.atomic import atomic_write, read_json_file
 from elegant.episode_log import EpisodeLog
 
-GATE_FORMAT = "libero-elegant-gate/1"
+GATE_FORMAT = "libero-elegant-gate/2"
+GATED_MODES = ("jiti", "always")
 
 
 def _run(path: str | os.PathLike, mode: str) -> tuple[dict[str, Any], dict[tuple[str, int], dict[str, Any]]]:
@@ -44,41 +52,105 @@ def _run(path: str | os.PathLike, mode: str) -> tuple[dict[str, Any], dict[tuple
     return config, {(r["task"], int(r["episode"])): r for r in records}
 
 
-def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike) -> dict[str, Any]:
-    """Per task, JITI's paired effect on ESR in a validation pair of runs and whether to enable it.
+def _paired_effects(base: dict[tuple[str, int], dict[str, Any]], runs: dict[str, dict[tuple[str, int], dict[str, Any]]]
+                    ) -> dict[str, dict[str, Any]]:
+    """Per task, each mode's episodes made elegant and spoiled against base and its interventions per
+    episode, over the episodes every run finished."""
+    keys = set(base).intersection(*runs.values())
+    tasks: dict[str, dict[str, Any]] = {}
+    for key in sorted(keys):
+        row = tasks.setdefault(key[0], {"episodes": 0, **{m: {"gained": 0, "lost": 0, "interventions": 0.0} for m in runs}})
+        row["episodes"] += 1
+        for mode, episodes in runs.items():
+            effect, b, r = row[mode], base[key], episodes[key]
+            effect["gained"] += bool(r["elegant"]) and not b["elegant"]
+            effect["lost"] += bool(b["elegant"]) and not r["elegant"]
+            effect["interventions"] += float(r.get("interventions", 0))
+    for row in tasks.values():
+        for mode in runs:
+            row[mode]["interventions"] /= row["episodes"]
+    return tasks
+
+
+def _net(row: dict[str, Any], mode: str) -> int:
+    return 0 if mode == "base" else row[mode]["gained"] - row[mode]["lost"]
+
+
+def _rate(row: dict[str, Any], mode: str) -> float:
+    return 0.0 if mode == "base" else row[mode]["interventions"]
+
+
+def _choose_modes(tasks: dict[str, dict[str, Any]], modes: tuple[str, ...], budget: float) -> float | None:
+    """Set each task's "mode": the one that made the most more episodes elegant than it spoiled, base
+    unless one made more elegant than it spoiled (ties go to the fewer interventions). With `always`
+    among the modes, tasks are moved back from `always` to their next best mode, cheapest loss per
+    saved intervention first, until the suite's interventions per episode are at most `budget` times
+    `always`'s on every task; returns that limit (None without `always`)."""
+    order = ("base", *modes)  # fewest interventions first, so a tie keeps the sparser mode
+
+    def best(row: dict[str, Any], among: tuple[str, ...]) -> str:
+        return max(among, key=lambda m: (_net(row, m), -among.index(m)))
+
+    def cost_of_moving_back(item: tuple[str, dict[str, Any]]) -> tuple[float, str]:
+        task, row = item
+        fallback = best(row, order[:-1])
+        saved = _rate(row, "always") - _rate(row, fallback)
+        return (_net(row, "always") - _net(row, fallback)) / max(saved, 1e-9), task
+
+    for row in tasks.values():
+        row["mode"] = best(row, order)
+    if "always" not in modes:
+        return None
+    limit = budget * sum(_rate(row, "always") for row in tasks.values()) / len(tasks)
+    while sum(_rate(row, row["mode"]) for row in tasks.values()) / len(tasks) > limit:
+        steered = [(task, row) for task, row in tasks.items() if row["mode"] == "always"]
+        if not steered:
+            break  # JITI alone is over the budget: nothing left to move back
+        _, row = min(steered, key=cost_of_moving_back)
+        row["mode"] = best(row, order[:-1])
+    return limit
+
+
+def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_run: str | os.PathLike | None = None,
+              budget: float = 0.4) -> dict[str, Any]:
+    """Per task, JITI's (and `always`'s) paired effect on ESR in validation runs, and the mode to run it in.
 
     The runs must share suite, seed, init states and episode settings (so episode i of a task starts
-    alike in both). A task is enabled when JITI's episodes turned elegant outnumber those it spoiled.
+    alike in all). A task runs JITI where JITI made more episodes elegant than it spoiled, and with
+    `always_run` it may instead re-rank every decision where `always` did better still, as long as the
+    suite's interventions stay within `budget` times `always`'s (JITI's promise is to intervene rarely:
+    issue 7 holds it to 40%).
     """
     base_config, base = _run(base_run, "base")
-    jiti_config, jiti = _run(jiti_run, "jiti")
-    for field in ("suite", "seed", "init_states", "perturbation", "max_steps"):
-        if base_config.get(field) != jiti_config.get(field):
-            raise UserInputError(f"{jiti_run}: field {field!r} is {jiti_config.get(field)!r} but the base run {base_run} has "
-                                 f"{base_config.get(field)!r}; validate both on the same starts")
-    tasks: dict[str, dict[str, Any]] = {}
-    for key in sorted(set(base) & set(jiti)):
-        row = tasks.setdefault(key[0], {"episodes": 0, "gained": 0, "lost": 0})
-        row["episodes"] += 1
-        row["gained"] += bool(jiti[key]["elegant"]) and not base[key]["elegant"]
-        row["lost"] += bool(base[key]["elegant"]) and not jiti[key]["elegant"]
+    paths = {"jiti": jiti_run, **({} if always_run is None else {"always": always_run})}
+    runs = {}
+    for mode, path in paths.items():
+        config, runs[mode] = _run(path, mode)
+        for field in ("suite", "seed", "init_states", "perturbation", "max_steps"):
+            if base_config.get(field) != config.get(field):
+                raise UserInputError(f"{path}: field {field!r} is {config.get(field)!r} but the base run {base_run} has "
+                                     f"{base_config.get(field)!r}; validate every run on the same starts")
+    if not 0 < budget <= 1:
+        raise UserInputError(f"gate budget must be in (0, 1] (a share of always's interventions), got {budget}")
+    tasks = _paired_effects(base, runs)
     if not tasks:
-        raise UserInputError(f"{base_run} and {jiti_run} share no finished episode of any task")
-    for row in tasks.values():
-        row["enabled"] = row["gained"] > row["lost"]
+        raise UserInputError(f"{base_run} and {', '.join(map(str, paths.values()))} share no finished episode of any task")
+    limit = _choose_modes(tasks, tuple(runs), budget)
     return {"format": GATE_FORMAT, "suite": base_config["suite"], "init_states": base_config.get("init_states"),
-            "base_run": os.path.abspath(base_run), "jiti_run": os.path.abspath(jiti_run), "tasks": tasks}
+            "base_run": os.path.abspath(base_run), **{f"{m}_run": os.path.abspath(p) for m, p in paths.items()},
+            **({} if limit is None else {"budget": budget, "interventions_limit": limit}), "tasks": tasks}
 
 
-def write_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, out: str | os.PathLike) -> dict[str, Any]:
+def write_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, out: str | os.PathLike,
+               always_run: str | os.PathLike | None = None, budget: float = 0.4) -> dict[str, Any]:
     """`task_gate` written atomically to `out` (JSON); returns it."""
-    gate = task_gate(base_run, jiti_run)
+    gate = task_gate(base_run, jiti_run, always_run, budget)
     atomic_write(out, json.dumps(gate, indent=2))
     return gate
 
 
-def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states: list[int] | None) -> dict[str, bool]:
-    """{task: JITI enabled} for an evaluation of `tasks` of `suite` from `init_states` (None: all).
+def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states: list[int] | None) -> dict[str, str]:
+    """{task: the mode it runs in (base, jiti or always)} for an evaluation of `tasks` of `suite` from `init_states` (None: all).
 
     Refuses a gate of another suite, one missing any of the tasks, and one validated on starts the
     evaluation uses: a gate chosen on the evaluated starts would report its own selection as an effect."""
@@ -95,4 +167,8 @@ def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states
         shared = "all init states" if validated is None or init_states is None else sorted(set(validated) & set(init_states))
         raise UserInputError(f"{path}: field 'init_states' overlaps the evaluation's starts ({shared}); validate on other starts, "
                              "e.g. --init-states 0-24 for the gate and 25-49 for the evaluation")
-    return {t: bool(gate["tasks"][t]["enabled"]) for t in tasks}
+    modes = {t: gate["tasks"][t].get("mode") for t in tasks}
+    wrong = [t for t, m in modes.items() if m not in ("base", *GATED_MODES)]
+    if wrong:
+        raise UserInputError(f"{path}: field 'tasks.{wrong[0]}.mode' is {modes[wrong[0]]!r}; expected one of base, {', '.join(GATED_MODES)}")
+    return modes

@@ -208,29 +208,31 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     assert calls[-1]["jiti_kwargs"] == {"min_gain": 0.05}
 
 
-def test_a_gate_validated_on_other_starts_runs_disabled_tasks_as_the_base_policy(tmp_path):
-    """`elegant gate` pairs a base and a JITI run on validation starts; `evaluate(gate=...)` then runs a
-    task it disables exactly as mode base does, one it enables as JITI, and refuses the validation starts."""
+def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tmp_path):
+    """`elegant gate` pairs base, JITI and `always` runs on validation starts; `evaluate(gate=...)` then runs
+    a task exactly as the chosen mode's own run does (base, jiti or always), and refuses the validation starts."""
     from elegant.gate import write_gate
 
     run(tmp_path / "val_base", mode="base", init_states=[0, 1])
     run(tmp_path / "val_jiti", init_states=[0, 1])
+    run(tmp_path / "val_always", mode="always", init_states=[0, 1])
     gate_path = tmp_path / "gate.json"
-    gate = write_gate(tmp_path / "val_base", tmp_path / "val_jiti", gate_path)
+    gate = write_gate(tmp_path / "val_base", tmp_path / "val_jiti", gate_path, always_run=tmp_path / "val_always", budget=1.0)
     base_val, jiti_val = records(tmp_path / "val_base"), records(tmp_path / "val_jiti")
     row = gate["tasks"][f"{SUITE}/{TASK}"]
     assert row["episodes"] == 2 and gate["init_states"] == [0, 1]
-    assert row["gained"] == sum(j["elegant"] and not b["elegant"] for b, j in zip(base_val, jiti_val))
-    assert row["enabled"] == (row["gained"] > row["lost"])
-    for enabled in (False, True):
-        gate["tasks"][f"{SUITE}/{TASK}"]["enabled"] = enabled
-        gate_path.write_text(json.dumps(gate))
-        run(tmp_path / f"gated_{enabled}", init_states=[2, 3], gate=str(gate_path))
-    run(tmp_path / "base_23", mode="base", init_states=[2, 3])
+    assert row["jiti"]["gained"] == sum(j["elegant"] and not b["elegant"] for b, j in zip(base_val, jiti_val))
+    assert row["always"]["interventions"] == np.mean([r["interventions"] for r in records(tmp_path / "val_always")])
     outcome = ("init_index", "success", "elegant", "violated", "steps", "interventions")
-    off, on, base = (records(tmp_path / name) for name in ("gated_False", "gated_True", "base_23"))
-    assert [[r[k] for k in outcome] for r in off] == [[r[k] for k in outcome] for r in base]
-    assert all(r["interventions"] == 0 for r in off) and sum(r["interventions"] for r in on) > 0
-    assert json.loads((tmp_path / "gated_False" / "config.json").read_text())["gate"]["enabled"] == {f"{SUITE}/{TASK}": False}
+    for mode in ("base", "jiti", "always"):
+        gate["tasks"][f"{SUITE}/{TASK}"]["mode"] = mode
+        gate_path.write_text(json.dumps(gate))
+        run(tmp_path / f"gated_{mode}", init_states=[2, 3], gate=str(gate_path))
+        run(tmp_path / f"{mode}_23", mode=mode, init_states=[2, 3])
+        gated, alone = records(tmp_path / f"gated_{mode}"), records(tmp_path / f"{mode}_23")
+        assert [[r[k] for k in outcome] for r in gated] == [[r[k] for k in outcome] for r in alone]
+        assert json.loads((tmp_path / f"gated_{mode}" / "config.json").read_text())["gate"]["modes"] == {f"{SUITE}/{TASK}": mode}
+    assert all(r["interventions"] == 0 for r in records(tmp_path / "gated_base"))
+    assert sum(r["interventions"] for r in records(tmp_path / "gated_always")) > sum(r["interventions"] for r in records(tmp_path / "gated_jiti")) > 0
     with pytest.raises(UserInputError, match="overlaps the evaluation's starts \\(\\[1\\]\\)"):
         run(tmp_path / "overlap", init_states=[1, 2], gate=str(gate_path))

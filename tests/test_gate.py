@@ -7,28 +7,56 @@ from base_suites import UserInputError
 from elegant.gate import read_gate, task_gate, write_gate
 
 
-def write_run(path, mode, elegant_by_task, init_states=(0, 1, 2), seed=0):
-    """A finished run: config.json and one episodes.jsonl line per (task, episode) with its elegance."""
+def write_run(path, mode, elegant_by_task, init_states=(0, 1, 2), seed=0, interventions=0):
+    """A finished run: config.json and one episodes.jsonl line per (task, episode) with its elegance
+    (and `interventions` per episode, or {task: interventions})."""
     path.mkdir()
     config = {"suite": "libero_goal", "mode": mode, "seed": seed, "init_states": list(init_states), "perturbation": None, "max_steps": None}
     (path / "config.json").write_text(json.dumps(config))
-    lines = [json.dumps({"task": task, "episode": i, "elegant": e, "success": e}) for task, flags in elegant_by_task.items() for i, e in enumerate(flags)]
+    per_task = interventions if isinstance(interventions, dict) else dict.fromkeys(elegant_by_task, interventions)
+    lines = [json.dumps({"task": task, "episode": i, "elegant": e, "success": e, "interventions": per_task[task]})
+             for task, flags in elegant_by_task.items() for i, e in enumerate(flags)]
     (path / "episodes.jsonl").write_text("".join(line + "\n" for line in lines))
     return path
 
 
-def test_a_task_is_enabled_only_where_jiti_turned_more_episodes_elegant_than_it_spoiled(tmp_path):
+def test_a_task_runs_jiti_only_where_jiti_turned_more_episodes_elegant_than_it_spoiled(tmp_path):
     base = write_run(tmp_path / "base", "base", {"libero_goal/0": [1, 1, 0, 0], "libero_goal/4": [0, 0, 0, 1], "libero_goal/1": [1, 0]})
-    jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [0, 1, 0, 0], "libero_goal/4": [1, 1, 0, 1], "libero_goal/1": [0, 1, 1]})
+    jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [0, 1, 0, 0], "libero_goal/4": [1, 1, 0, 1], "libero_goal/1": [0, 1, 1]},
+                     interventions=3)
     gate = write_gate(base, jiti, tmp_path / "gate.json")
     assert json.loads((tmp_path / "gate.json").read_text()) == gate
+    assert "budget" not in gate and "always_run" not in gate
     assert gate["tasks"] == {
-        "libero_goal/0": {"episodes": 4, "gained": 0, "lost": 1, "enabled": False},
-        "libero_goal/1": {"episodes": 2, "gained": 1, "lost": 1, "enabled": False},  # a tie keeps the base policy; episode 2 is unpaired
-        "libero_goal/4": {"episodes": 4, "gained": 2, "lost": 0, "enabled": True},
+        "libero_goal/0": {"episodes": 4, "jiti": {"gained": 0, "lost": 1, "interventions": 3.0}, "mode": "base"},
+        # a tie keeps the base policy; episode 2 is unpaired
+        "libero_goal/1": {"episodes": 2, "jiti": {"gained": 1, "lost": 1, "interventions": 3.0}, "mode": "base"},
+        "libero_goal/4": {"episodes": 4, "jiti": {"gained": 2, "lost": 0, "interventions": 3.0}, "mode": "jiti"},
     }
     assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/4", "libero_goal/0"], [25, 26]) == {
-        "libero_goal/4": True, "libero_goal/0": False}
+        "libero_goal/4": "jiti", "libero_goal/0": "base"}
+
+
+def test_always_is_chosen_where_it_does_best_until_the_suite_spends_its_intervention_budget(tmp_path):
+    tasks = [f"libero_goal/{i}" for i in range(4)]
+    base = write_run(tmp_path / "base", "base", dict.fromkeys(tasks, [0, 0, 0, 0]))
+    # jiti: +1 on tasks 0-2, nothing on 3; always: +3 on 0, +2 on 1, +1 on 2 (a tie with jiti), +2 on 3
+    jiti = write_run(tmp_path / "jiti", "jiti", {tasks[0]: [1, 0, 0, 0], tasks[1]: [1, 0, 0, 0], tasks[2]: [1, 0, 0, 0], tasks[3]: [0, 0, 0, 0]},
+                     interventions=2)
+    always = write_run(tmp_path / "always", "always", {tasks[0]: [1, 1, 1, 0], tasks[1]: [1, 1, 0, 0], tasks[2]: [1, 0, 0, 0],
+                                                      tasks[3]: [1, 1, 0, 0]}, interventions=20)
+    modes = lambda gate: {t: row["mode"] for t, row in gate["tasks"].items()}  # noqa: E731
+    # without a binding budget always wins wherever it made more elegant; the tie on task 2 keeps jiti
+    roomy = task_gate(base, jiti, always, budget=1.0)
+    assert modes(roomy) == {tasks[0]: "always", tasks[1]: "always", tasks[2]: "jiti", tasks[3]: "always"}
+    # 40% of always's 20 per episode is 8: (20 + 2 + 2 + 0) / 4 = 6 fits one always task, the one that gains most over its fallback
+    # per saved intervention (task 0: 2 over jiti per 18 saved, task 1: 1 per 18, task 3: 2 over base per 20)
+    tight = task_gate(base, jiti, always)
+    assert tight["interventions_limit"] == pytest.approx(8.0) and tight["budget"] == 0.4
+    assert modes(tight) == {tasks[0]: "always", tasks[1]: "jiti", tasks[2]: "jiti", tasks[3]: "base"}
+    assert sum({"base": 0, "jiti": 2, "always": 20}[m] for m in modes(tight).values()) / 4 <= 8
+    with pytest.raises(UserInputError, match="budget must be in \\(0, 1\\]"):
+        task_gate(base, jiti, always, budget=0)
 
 
 def test_refusals_name_the_file_and_the_field(tmp_path):
@@ -54,3 +82,10 @@ def test_refusals_name_the_file_and_the_field(tmp_path):
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(UserInputError, match="bad.json: field 'format'"):
         read_gate(tmp_path / "bad.json", "libero_goal", ["libero_goal/0"], [30])
+    gate = json.loads((tmp_path / "gate.json").read_text())
+    gate["tasks"]["libero_goal/0"]["mode"] = "sometimes"
+    (tmp_path / "odd.json").write_text(json.dumps(gate))
+    with pytest.raises(UserInputError, match="odd.json: field 'tasks.libero_goal/0.mode' is 'sometimes'"):
+        read_gate(tmp_path / "odd.json", "libero_goal", ["libero_goal/0"], [30])
+    with pytest.raises(UserInputError, match="field 'mode' is 'base'; the gate needs a 'always' run"):
+        task_gate(base, jiti, always_run=base)

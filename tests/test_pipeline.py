@@ -105,7 +105,7 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     assert jiti_config["jiti"]["trigger"] == "drop"
     gate = json.load(open(tmp_path / "gate_libero_object.json"))
     assert gate["init_states"] == list(range(25)) and gate["tasks"]["libero_object/0"]["episodes"] == 1
-    assert jiti_config["gate"]["enabled"] == {"libero_object/0": gate["tasks"]["libero_object/0"]["enabled"]}
+    assert jiti_config["gate"]["modes"] == {"libero_object/0": gate["tasks"]["libero_object/0"]["mode"]}
     for mode in ("base", "jiti"):
         assert json.load(open(tmp_path / f"validate_{mode}_libero_object" / "config.json"))["init_states"] == list(range(25))
     with pytest.raises(UserInputError, match="jiti_gate validates on the rollouts' starts"):
