@@ -75,7 +75,8 @@ def main() -> None:
     parser.add_argument("--warmup", choices=WARMUPS, help="what JITI's first --window decisions execute: base (default) or steer (the critic's choice)")
     parser.add_argument("--candidates", type=int, help="actions JITI draws from the policy per decision (default: JITI's, 16)")
     parser.add_argument("--jiti-gate", action="store_true",
-                        help="validate base and JITI on the rollouts' starts first; evaluate JITI only on the tasks where it helped there")
+                        help="validate base, JITI and always on the rollouts' starts first; run each task in the mode that helped most "
+                             "there (always only within 40%% of always's interventions)")
     parser.add_argument("--critic-members", type=int, default=1,
                         help="critics trained on bootstrap resamples of the data; JITI overrides only when all prefer it")
     args = parser.parse_args()

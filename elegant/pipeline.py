@@ -70,6 +70,8 @@ class ChainConfig:
     `jiti_gate`: before the evaluation, the base policy and JITI each run `episodes` per task from the
     rollouts' starts (validation, never the evaluated ones), and JITI is then evaluated only on the tasks
     where it made more episodes elegant than it spoiled there (`elegant.gate`); needs `critic_rollouts`.
+    With "always" among `modes` it is validated too, and the gate may run a task as `always` where that
+    did better still, within 40% of `always`'s interventions over the suite.
     """
 
     suites: tuple[str, ...] = ("libero_object",)
@@ -320,15 +322,16 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     gates = {s: None for s in cfg.suites}
     if cfg.jiti_gate and "jiti" in cfg.modes:
         for suite in cfg.suites:
-            say(f"validate base and jiti on {suite}'s rollout starts: {cfg.episodes} episodes per task each")
+            validated = ("base", "jiti", *(("always",) if "always" in cfg.modes else ()))
+            say(f"validate {', '.join(validated)} on {suite}'s rollout starts: {cfg.episodes} episodes per task each")
             validation = {}
-            for mode in ("base", "jiti"):
+            for mode in validated:
                 validation[mode] = os.path.join(out, f"validate_{mode}_{suite}")
                 evaluate(suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes, seed=cfg.seed, out=validation[mode],
                          resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode), max_steps=cfg.max_steps,
                          init_states=rollout_starts, workers=workers)
             gates[suite] = os.path.join(out, f"gate_{suite}.json")
-            write_gate(validation["base"], validation["jiti"], gates[suite])
+            write_gate(validation["base"], validation["jiti"], gates[suite], always_run=validation.get("always"))
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:

@@ -89,3 +89,20 @@ def test_refusals_name_the_file_and_the_field(tmp_path):
         read_gate(tmp_path / "odd.json", "libero_goal", ["libero_goal/0"], [30])
     with pytest.raises(UserInputError, match="field 'mode' is 'base'; the gate needs a 'always' run"):
         task_gate(base, jiti, always_run=base)
+
+
+def test_the_gate_command_writes_the_budgeted_gate_and_refuses_a_bad_budget_in_one_line(tmp_path, capsys):
+    from elegant.cli import main
+
+    base = write_run(tmp_path / "base", "base", {"libero_goal/0": [0, 0], "libero_goal/1": [0, 0]})
+    jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [1, 0], "libero_goal/1": [0, 0]}, interventions=2)
+    always = write_run(tmp_path / "always", "always", {"libero_goal/0": [1, 1], "libero_goal/1": [1, 0]}, interventions=10)
+    out = tmp_path / "gate.json"
+    assert main(["gate", str(base), str(jiti), "--always", str(always), "--budget", "0.6", "--out", str(out)]) == 0
+    gate = json.loads(out.read_text())
+    assert gate["budget"] == 0.6 and {t: r["mode"] for t, r in gate["tasks"].items()} == {"libero_goal/0": "always", "libero_goal/1": "base"}
+    capsys.readouterr()
+    assert main(["gate", str(base), str(jiti), "--always", str(always), "--budget", "2", "--out", str(tmp_path / "no.json")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "elegant gate: error: gate budget must be in (0, 1] (a share of always's interventions), got 2.0"]
+    assert not (tmp_path / "no.json").exists()

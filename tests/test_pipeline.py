@@ -75,13 +75,13 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     """With `critic_rollouts` the trained policy's episodes, branching at one of `rollout_explore_at`, are
     recorded from the first half of the init states, annotated and added to the critic's data, trained
     with the chain's critic settings; every mode is then evaluated from the second half only. With
-    `jiti_gate` base and JITI are first validated on the rollouts' half, and the JITI evaluation is gated."""
+    `jiti_gate` base, JITI and `always` are first validated on the rollouts' half, and the JITI evaluation is gated."""
     import h5py
 
     copy_data_and_policy(chain[0], tmp_path)
     cfg = replace(TINY, critic_rollouts=2, rollout_explore_at=(4, 8), critic_backup="dataset", trust_radius=None, critic_reward="elegant",
                   critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5, trigger="drop",
-                  jiti_gate=True)
+                  jiti_gate=True, modes=("base", "always", "jiti"))
     result = run_chain(str(tmp_path), cfg, progress=False)
     rollouts = str(tmp_path / "rollouts_libero_object.hdf5")
     training = json.load(open(tmp_path / "critic" / "critic.json"))["training"]
@@ -106,7 +106,8 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     gate = json.load(open(tmp_path / "gate_libero_object.json"))
     assert gate["init_states"] == list(range(25)) and gate["tasks"]["libero_object/0"]["episodes"] == 1
     assert jiti_config["gate"]["modes"] == {"libero_object/0": gate["tasks"]["libero_object/0"]["mode"]}
-    for mode in ("base", "jiti"):
+    assert gate["always_run"] == str(tmp_path / "validate_always_libero_object") and gate["budget"] == 0.4
+    for mode in ("base", "jiti", "always"):
         assert json.load(open(tmp_path / f"validate_{mode}_libero_object" / "config.json"))["init_states"] == list(range(25))
     with pytest.raises(UserInputError, match="jiti_gate validates on the rollouts' starts"):
         run_chain(str(tmp_path / "other"), replace(TINY, jiti_gate=True), progress=False)
