@@ -1,4 +1,4 @@
-"""How each task should run under JITI (as the base policy, JITI, or `always`), decided on validation starts, never on the evaluation's.
+"""How each task runs under JITI (base, JITI or `always`), decided on validation starts, never on the evaluation's.
 
 JITI with one critic helps some tasks and spoils others: on libero_goal/4 it made 14 more episodes
 elegant and spoiled none, on libero_goal/0 it spoiled 7 and rescued none, and no per-state Q threshold
@@ -67,7 +67,7 @@ def _paired_effects(base: dict[tuple[str, int], dict[str, Any]], runs: dict[str,
             effect, b, r = row[mode], base[key], episodes[key]
             effect["gained"] += bool(r["elegant"]) and not b["elegant"]
             effect["lost"] += bool(b["elegant"]) and not r["elegant"]
-            effect["interventions"] += float(r.get("interventions", 0))
+            effect["interventions"] += float(r["interventions"])
     for row in tasks.values():
         for mode in runs:
             row[mode]["interventions"] /= row["episodes"]
