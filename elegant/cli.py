@@ -334,8 +334,9 @@ def _gate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("base_run", help="a base-mode run on validation starts (e.g. --init-states 0-24)")
     p.add_argument("jiti_run", help="the JITI run to judge, on the same starts")
     p.add_argument("--always", help="an `always` run on the same starts: a task may then re-rank every decision where that did best")
-    p.add_argument("--budget", type=float, default=0.4,
-                   help="with --always: the suite's interventions per episode at most this share of always's (default 0.4)")
+    p.add_argument("--budget", type=float,
+                   help="with --always: the suite's interventions per episode at most this share of always's "
+                        "(default: elegant.gate.INTERVENTION_BUDGET, 0.4)")
     p.add_argument("--out", required=True, help="gate file (JSON) for elegant eval --gate")
 
 
@@ -343,7 +344,8 @@ def _gate_args(p: argparse.ArgumentParser) -> None:
 def _gate(args: argparse.Namespace) -> dict:
     from elegant.gate import write_gate
 
-    return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, budget=args.budget)
+    budget = {} if args.budget is None else {"budget": args.budget}
+    return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, **budget)
 
 
 def _lifelong_args(p: argparse.ArgumentParser) -> None:

@@ -42,6 +42,7 @@ from elegant.episode_log import EpisodeLog
 
 GATE_FORMAT = "libero-elegant-gate/2"
 GATED_MODES = ("jiti", "always")
+INTERVENTION_BUDGET = 0.4  # issue 7's bound on JITI: at most 40% of `always`'s interventions
 
 
 def _run(path: str | os.PathLike, mode: str) -> tuple[dict[str, Any], dict[tuple[str, int], dict[str, Any]]]:
@@ -93,28 +94,30 @@ def _choose_modes(tasks: dict[str, dict[str, Any]], modes: tuple[str, ...], budg
     def best(row: dict[str, Any], among: tuple[str, ...]) -> str:
         return max(among, key=lambda m: (_net(row, m), -among.index(m)))
 
-    def cost_of_moving_back(item: tuple[str, dict[str, Any]]) -> tuple[float, str]:
-        task, row = item
-        fallback = best(row, order[:-1])
-        saved = _rate(row, "always") - _rate(row, fallback)
-        return (_net(row, "always") - _net(row, fallback)) / max(saved, 1e-9), task
-
     for row in tasks.values():
         row["mode"] = best(row, order)
     if "always" not in modes:
         return None
+    sparser = tuple(m for m in order if m != "always")
+    fallback = {task: best(row, sparser) for task, row in tasks.items()}
+
+    def cost_of_moving_back(task: str) -> tuple[float, str]:
+        row, back = tasks[task], fallback[task]
+        saved = _rate(row, "always") - _rate(row, back)
+        return (_net(row, "always") - _net(row, back)) / max(saved, 1e-9), task
+
     limit = budget * sum(_rate(row, "always") for row in tasks.values()) / len(tasks)
     while sum(_rate(row, row["mode"]) for row in tasks.values()) / len(tasks) > limit:
-        steered = [(task, row) for task, row in tasks.items() if row["mode"] == "always"]
+        steered = [task for task, row in tasks.items() if row["mode"] == "always"]
         if not steered:
             break  # JITI alone is over the budget: nothing left to move back
-        _, row = min(steered, key=cost_of_moving_back)
-        row["mode"] = best(row, order[:-1])
+        task = min(steered, key=cost_of_moving_back)
+        tasks[task]["mode"] = fallback[task]
     return limit
 
 
 def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_run: str | os.PathLike | None = None,
-              budget: float = 0.4) -> dict[str, Any]:
+              budget: float = INTERVENTION_BUDGET) -> dict[str, Any]:
     """Per task, JITI's (and `always`'s) paired effect on ESR in validation runs, and the mode to run it in.
 
     The runs must share suite, seed, init states and episode settings (so episode i of a task starts
@@ -144,7 +147,7 @@ def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_r
 
 
 def write_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, out: str | os.PathLike,
-               always_run: str | os.PathLike | None = None, budget: float = 0.4) -> dict[str, Any]:
+               always_run: str | os.PathLike | None = None, budget: float = INTERVENTION_BUDGET) -> dict[str, Any]:
     """`task_gate` written atomically to `out` (JSON); returns it."""
     gate = task_gate(base_run, jiti_run, always_run, budget)
     atomic_write(out, json.dumps(gate, indent=2))

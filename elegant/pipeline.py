@@ -321,8 +321,8 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     critic = ",".join(critic_dirs) if needs_critic else None
     gates = {s: None for s in cfg.suites}
     if cfg.jiti_gate and "jiti" in cfg.modes:
+        validated = ("base", "jiti", *(("always",) if "always" in cfg.modes else ()))
         for suite in cfg.suites:
-            validated = ("base", "jiti", *(("always",) if "always" in cfg.modes else ()))
             say(f"validate {', '.join(validated)} on {suite}'s rollout starts: {cfg.episodes} episodes per task each")
             validation = {}
             for mode in validated:
