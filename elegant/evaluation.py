@@ -201,31 +201,30 @@ def evaluate(
     for spec in specs:
         check_init_states(init_states, spec.n_init_states)
     indices = list(dict.fromkeys(spec.index for spec in specs))
-    task_modes = None
-    if gate is not None:
-        from elegant.gate import read_gate
-
-        if mode != "jiti":
-            raise UserInputError(f"--gate chooses per task how JITI runs; mode {mode!r} has none to choose")
-        chosen = None if init_states is None else sorted({int(i) for i in init_states})
-        task_modes = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen)
+    if gate is not None and mode != "jiti":
+        raise UserInputError(f"--gate chooses per task how JITI runs; mode {mode!r} has none to choose")
     workers = check_workers(workers)
     if workers > 1:
         check_picklable((policy, critic), "the policy or the critic")
     agent = build_agent(policy, critic, mode, seed, settings)
+    chosen = None if init_states is None else sorted({int(i) for i in init_states})
+    described = {"policy": _describe(policy), "critic": _describe(critic), "jiti": {k: v for k, v in agent.config().items() if k != "mode"}}
+    task_modes = None
+    if gate is not None:
+        from elegant.gate import read_gate
+
+        task_modes = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen, described)
     config = {
         "suite": suite,
         "tasks": indices,
-        "policy": _describe(policy),
-        "critic": _describe(critic),
-        "jiti": {k: v for k, v in agent.config().items() if k != "mode"},
+        **described,
         "mode": mode,
         "episodes": int(episodes),
         "seed": int(seed),
         "perturbation": perturbation,
         "max_steps": max_steps,
         "obs": obs,
-        "init_states": None if init_states is None else sorted({int(i) for i in init_states}),
+        "init_states": chosen,
         **({} if task_modes is None else {"gate": {"file": os.path.abspath(gate), "modes": task_modes}}),
     }
     out = Path(out)

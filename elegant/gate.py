@@ -8,7 +8,9 @@ policy and JITI on validation starts (the init states the critic's rollouts came
 `--init-states 0-24`), pair their episodes (same task, same episode index, hence the same start), and
 enable JITI on a task only if it made more episodes elegant than it spoiled there. `elegant eval
 --gate gate.json` then runs the other tasks as the base policy, and refuses a gate validated on any of
-the evaluation's own starts.
+the evaluation's own starts. A gate's choices are evidence about one policy, critic and set of JITI
+settings (on libero_goal/2 the steered warm-up alone decides whether JITI helps), so the gate records
+them and refuses an evaluation, or an `always` run, with any other.
 
 Some tasks need more than JITI's rare interventions: on libero_object/5 the session-31 policy fails
 half its held-out episodes, and `always` (re-ranking every decision) made many of them elegant where
@@ -40,8 +42,11 @@ from base_suites import UserInputError
 from base_suites.atomic import atomic_write, read_json_file
 from elegant.episode_log import EpisodeLog
 
-GATE_FORMAT = "libero-elegant-gate/2"
+GATE_FORMAT = "libero-elegant-gate/3"
 GATED_MODES = ("jiti", "always")
+# the fields of a run's config.json that decide what a gated task's JITI or `always` does: a gate's
+# choices hold only for the policy, critic and JITI settings its validation runs used
+AGENT_FIELDS = ("policy", "critic", "jiti")
 INTERVENTION_BUDGET = 0.4  # issue 7's bound on JITI: at most 40% of `always`'s interventions
 
 
@@ -73,6 +78,19 @@ def _paired_effects(base: dict[tuple[str, int], dict[str, Any]], runs: dict[str,
         for mode in runs:
             row[mode]["interventions"] /= row["episodes"]
     return tasks
+
+
+def _refuse_other_agent(path: str | os.PathLike, expected: dict[str, Any], got: dict[str, Any], whose: str, prefix: str = "") -> None:
+    """Refuse `got` (policy, critic and JITI settings, as in a run's config; at `prefix` in the file at
+    `path`) unless it equals `expected`, naming the first field that differs."""
+    for field in AGENT_FIELDS:
+        want, have = expected.get(field), got.get(field)
+        if field == "jiti" and isinstance(want, dict) and isinstance(have, dict):
+            differs = [key for key in sorted(set(want) | set(have)) if want.get(key) != have.get(key)]
+            field, want, have = (f"jiti.{differs[0]}", want.get(differs[0]), have.get(differs[0])) if differs else (field, None, None)
+        if want != have:
+            raise UserInputError(f"{path}: field '{prefix}{field}' is {have!r} but {whose} is {want!r}; "
+                                 "a gate holds only for the policy, critic and JITI settings it validated")
 
 
 def _net(row: dict[str, Any], mode: str) -> int:
@@ -121,20 +139,25 @@ def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_r
     """Per task, JITI's (and `always`'s) paired effect on ESR in validation runs, and the mode to run it in.
 
     The runs must share suite, seed, init states and episode settings (so episode i of a task starts
-    alike in all). A task runs JITI where JITI made more episodes elegant than it spoiled, and with
+    alike in all) and the policy; the JITI and `always` runs also the critic and JITI settings, which the
+    gate records under "agent". A task runs JITI where JITI made more episodes elegant than it spoiled, and with
     `always_run` it may instead re-rank every decision where `always` did better still, as long as the
     suite's interventions stay within `budget` times `always`'s (JITI's promise is to intervene rarely:
     issue 7 holds it to 40%).
     """
     base_config, base = _run(base_run, "base")
     paths = {"jiti": jiti_run, **({} if always_run is None else {"always": always_run})}
-    runs = {}
+    runs, configs = {}, {}
     for mode, path in paths.items():
-        config, runs[mode] = _run(path, mode)
-        for field in ("suite", "seed", "init_states", "perturbation", "max_steps"):
-            if base_config.get(field) != config.get(field):
-                raise UserInputError(f"{path}: field {field!r} is {config.get(field)!r} but the base run {base_run} has "
-                                     f"{base_config.get(field)!r}; validate every run on the same starts")
+        configs[mode], runs[mode] = _run(path, mode)
+        for field in ("suite", "seed", "init_states", "perturbation", "max_steps", "policy"):
+            if base_config.get(field) != configs[mode].get(field):
+                raise UserInputError(f"{path}: field {field!r} is {configs[mode].get(field)!r} but the base run {base_run} has "
+                                     f"{base_config.get(field)!r}; validate every run on the same starts with the same policy")
+    agent = {field: configs["jiti"].get(field) for field in AGENT_FIELDS}
+    if always_run is not None:
+        _refuse_other_agent(always_run, agent, {field: configs["always"].get(field) for field in AGENT_FIELDS},
+                            f"the JITI run {jiti_run}'s")
     if not 0 < budget <= 1:
         raise UserInputError(f"gate budget must be in (0, 1] (a share of always's interventions), got {budget}")
     tasks = _paired_effects(base, runs)
@@ -142,7 +165,7 @@ def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_r
         raise UserInputError(f"{base_run} and {', '.join(map(str, paths.values()))} share no finished episode of any task")
     limit = _choose_modes(tasks, tuple(runs), budget)
     return {"format": GATE_FORMAT, "suite": base_config["suite"], "init_states": base_config.get("init_states"),
-            "base_run": os.path.abspath(base_run), **{f"{m}_run": os.path.abspath(p) for m, p in paths.items()},
+            "base_run": os.path.abspath(base_run), **{f"{m}_run": os.path.abspath(p) for m, p in paths.items()}, "agent": agent,
             **({} if limit is None else {"budget": budget, "interventions_limit": limit}), "tasks": tasks}
 
 
@@ -154,16 +177,20 @@ def write_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, out: st
     return gate
 
 
-def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states: list[int] | None) -> dict[str, str]:
-    """{task: the mode it runs in (base, jiti or always)} for an evaluation of `tasks` of `suite` from `init_states` (None: all).
+def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states: list[int] | None,
+              agent: dict[str, Any]) -> dict[str, str]:
+    """{task: the mode it runs in (base, jiti or always)} for an evaluation of `tasks` of `suite` from
+    `init_states` (None: all) whose `agent` is {"policy", "critic", "jiti"} as its config.json names them.
 
-    Refuses a gate of another suite, one missing any of the tasks, and one validated on starts the
+    Refuses a gate of another suite, one missing any of the tasks, one validated with another policy,
+    critic or JITI setting (its choices say nothing of this one's), and one validated on starts the
     evaluation uses: a gate chosen on the evaluated starts would report its own selection as an effect."""
     gate = read_json_file(path, "gate")
     if not isinstance(gate, dict) or gate.get("format") != GATE_FORMAT:
-        raise UserInputError(f"{path}: field 'format' is not {GATE_FORMAT!r}; write the gate with `elegant gate`")
+        raise UserInputError(f"{path}: field 'format' is not {GATE_FORMAT!r}; write the gate (again) with `elegant gate`")
     if gate.get("suite") != suite:
         raise UserInputError(f"{path}: field 'suite' is {gate.get('suite')!r} but the evaluation is on {suite!r}")
+    _refuse_other_agent(path, agent, gate.get("agent") or {}, "this evaluation's", prefix="agent.")
     missing = [t for t in tasks if t not in gate.get("tasks", {})]
     if missing:
         raise UserInputError(f"{path}: field 'tasks' lacks {', '.join(missing)}; validate those tasks too")

@@ -236,3 +236,9 @@ def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tm
     assert sum(r["interventions"] for r in records(tmp_path / "gated_always")) > sum(r["interventions"] for r in records(tmp_path / "gated_jiti")) > 0
     with pytest.raises(UserInputError, match="overlaps the evaluation's starts \\(\\[1\\]\\)"):
         run(tmp_path / "overlap", init_states=[1, 2], gate=str(gate_path))
+    # the same gate with other JITI settings than it validated: refused before any episode runs
+    other = {**JITI_SETTINGS, "n_candidates": 5}
+    with pytest.raises(UserInputError, match="gate.json: field 'agent.jiti.n_candidates' .* but this evaluation's is"):
+        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), "jiti", 2, 0, tmp_path / "other_settings", jiti_kwargs=other,
+                 progress=False, max_steps=STEPS, init_states=[2, 3], gate=str(gate_path))
+    assert not (tmp_path / "other_settings" / "episodes.jsonl").exists()

@@ -7,11 +7,15 @@ from base_suites import UserInputError
 from elegant.gate import read_gate, task_gate, write_gate
 
 
-def write_run(path, mode, elegant_by_task, init_states=(0, 1, 2), seed=0, interventions=0):
-    """A finished run: config.json and one episodes.jsonl line per (task, episode) with its elegance
-    (and `interventions` per episode, or {task: interventions})."""
+AGENT = {"policy": "/runs/policy", "critic": "/runs/critic", "jiti": {"window": 4, "warmup": "steer"}}
+
+
+def write_run(path, mode, elegant_by_task, init_states=(0, 1, 2), seed=0, interventions=0, **agent):
+    """A finished run: config.json (with AGENT's policy, critic and JITI settings, or `agent`'s) and one
+    episodes.jsonl line per (task, episode) with its elegance (and `interventions` per episode, or {task: interventions})."""
     path.mkdir()
-    config = {"suite": "libero_goal", "mode": mode, "seed": seed, "init_states": list(init_states), "perturbation": None, "max_steps": None}
+    config = {"suite": "libero_goal", "mode": mode, "seed": seed, "init_states": list(init_states), "perturbation": None, "max_steps": None,
+              **AGENT, **agent}
     (path / "config.json").write_text(json.dumps(config))
     per_task = interventions if isinstance(interventions, dict) else dict.fromkeys(elegant_by_task, interventions)
     lines = [json.dumps({"task": task, "episode": i, "elegant": e, "success": e, "interventions": per_task[task]})
@@ -33,7 +37,7 @@ def test_a_task_runs_jiti_only_where_jiti_turned_more_episodes_elegant_than_it_s
         "libero_goal/1": {"episodes": 2, "jiti": {"gained": 1, "lost": 1, "interventions": 3.0}, "mode": "base"},
         "libero_goal/4": {"episodes": 4, "jiti": {"gained": 2, "lost": 0, "interventions": 3.0}, "mode": "jiti"},
     }
-    assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/4", "libero_goal/0"], [25, 26]) == {
+    assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/4", "libero_goal/0"], [25, 26], AGENT) == {
         "libero_goal/4": "jiti", "libero_goal/0": "base"}
 
 
@@ -70,25 +74,44 @@ def test_refusals_name_the_file_and_the_field(tmp_path):
         task_gate(base, write_run(tmp_path / "elsewhere", "jiti", {"libero_goal/2": [0]}))
     write_gate(base, jiti, tmp_path / "gate.json")
     with pytest.raises(UserInputError, match="field 'init_states' overlaps the evaluation's starts \\(\\[2\\]\\)"):
-        read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [2, 30])
+        read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [2, 30], AGENT)
     with pytest.raises(UserInputError, match="overlaps the evaluation's starts \\(all init states\\)"):
-        read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], None)
+        read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], None, AGENT)
     with pytest.raises(UserInputError, match="field 'tasks' lacks libero_goal/3"):
-        read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0", "libero_goal/3"], [30])
+        read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0", "libero_goal/3"], [30], AGENT)
     with pytest.raises(UserInputError, match="field 'suite' is 'libero_goal' but the evaluation is on 'libero_object'"):
-        read_gate(tmp_path / "gate.json", "libero_object", ["libero_object/0"], [30])
+        read_gate(tmp_path / "gate.json", "libero_object", ["libero_object/0"], [30], AGENT)
     with pytest.raises(UserInputError, match="missing.json: no such gate file"):
-        read_gate(tmp_path / "missing.json", "libero_goal", ["libero_goal/0"], [30])
+        read_gate(tmp_path / "missing.json", "libero_goal", ["libero_goal/0"], [30], AGENT)
     (tmp_path / "bad.json").write_text("{}")
     with pytest.raises(UserInputError, match="bad.json: field 'format'"):
-        read_gate(tmp_path / "bad.json", "libero_goal", ["libero_goal/0"], [30])
+        read_gate(tmp_path / "bad.json", "libero_goal", ["libero_goal/0"], [30], AGENT)
     gate = json.loads((tmp_path / "gate.json").read_text())
     gate["tasks"]["libero_goal/0"]["mode"] = "sometimes"
     (tmp_path / "odd.json").write_text(json.dumps(gate))
     with pytest.raises(UserInputError, match="odd.json: field 'tasks.libero_goal/0.mode' is 'sometimes'"):
-        read_gate(tmp_path / "odd.json", "libero_goal", ["libero_goal/0"], [30])
+        read_gate(tmp_path / "odd.json", "libero_goal", ["libero_goal/0"], [30], AGENT)
     with pytest.raises(UserInputError, match="field 'mode' is 'base'; the gate needs a 'always' run"):
         task_gate(base, jiti, always_run=base)
+
+
+def test_a_gate_holds_only_for_the_policy_critic_and_jiti_settings_it_validated(tmp_path):
+    """The gate's choices are evidence about one JITI: validation runs with different policies or settings
+    are refused, the gate records what it validated, and an evaluation with anything else is refused."""
+    base = write_run(tmp_path / "base", "base", {"libero_goal/0": [0, 0]})
+    jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [1, 0]})
+    with pytest.raises(UserInputError, match="field 'policy' is '/runs/other' but the base run .* has '/runs/policy'"):
+        task_gate(base, write_run(tmp_path / "other_policy", "jiti", {"libero_goal/0": [1, 0]}, policy="/runs/other"))
+    steered_differently = write_run(tmp_path / "always", "always", {"libero_goal/0": [1, 1]}, jiti={"window": 4, "warmup": "base"})
+    with pytest.raises(UserInputError, match="always: field 'jiti.warmup' is 'base' but the JITI run .*'s is 'steer'"):
+        task_gate(base, jiti, steered_differently)
+    gate = write_gate(base, jiti, tmp_path / "gate.json")
+    assert gate["agent"] == AGENT
+    assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [30], AGENT) == {"libero_goal/0": "jiti"}
+    for field, value, shown in (("critic", "/runs/critic_2", "'agent.critic' is '/runs/critic'"),
+                                ("jiti", {"window": 8, "warmup": "steer"}, "'agent.jiti.window' is 4")):
+        with pytest.raises(UserInputError, match=f"gate.json: field {shown} but this evaluation's is"):
+            read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [30], {**AGENT, field: value})
 
 
 def test_the_gate_command_writes_the_budgeted_gate_and_refuses_a_bad_budget_in_one_line(tmp_path, capsys):
