@@ -80,16 +80,26 @@ def _paired_effects(base: dict[tuple[str, int], dict[str, Any]], runs: dict[str,
     return tasks
 
 
+def _agent(config: dict[str, Any]) -> dict[str, Any]:
+    """The AGENT_FIELDS of a run's config: what a gate records as the JITI it validated."""
+    return {field: config.get(field) for field in AGENT_FIELDS}
+
+
+def _flat(agent: dict[str, Any]) -> dict[str, Any]:
+    """The AGENT_FIELDS of `agent` (a run's config or a gate's "agent") with the JITI settings spelled out
+    as "jiti.<setting>", so a mismatch names the setting."""
+    jiti = agent.get("jiti")
+    flat = {field: agent.get(field) for field in AGENT_FIELDS if field != "jiti"}
+    return {**flat, **({f"jiti.{k}": v for k, v in sorted(jiti.items())} if isinstance(jiti, dict) else {"jiti": jiti})}
+
+
 def _refuse_other_agent(path: str | os.PathLike, expected: dict[str, Any], got: dict[str, Any], whose: str, prefix: str = "") -> None:
-    """Refuse `got` (policy, critic and JITI settings, as in a run's config; at `prefix` in the file at
-    `path`) unless it equals `expected`, naming the first field that differs."""
-    for field in AGENT_FIELDS:
-        want, have = expected.get(field), got.get(field)
-        if field == "jiti" and isinstance(want, dict) and isinstance(have, dict):
-            differs = [key for key in sorted(set(want) | set(have)) if want.get(key) != have.get(key)]
-            field, want, have = (f"jiti.{differs[0]}", want.get(differs[0]), have.get(differs[0])) if differs else (field, None, None)
-        if want != have:
-            raise UserInputError(f"{path}: field '{prefix}{field}' is {have!r} but {whose} is {want!r}; "
+    """Refuse `got`'s policy, critic and JITI settings (read as `_flat` does; at `prefix` in the file at
+    `path`) unless they equal `expected`'s, naming the first field that differs."""
+    want, have = _flat(expected), _flat(got)
+    for field in dict.fromkeys([*want, *have]):
+        if want.get(field) != have.get(field):
+            raise UserInputError(f"{path}: field '{prefix}{field}' is {have.get(field)!r} but {whose} is {want.get(field)!r}; "
                                  "a gate holds only for the policy, critic and JITI settings it validated")
 
 
@@ -154,10 +164,9 @@ def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_r
             if base_config.get(field) != configs[mode].get(field):
                 raise UserInputError(f"{path}: field {field!r} is {configs[mode].get(field)!r} but the base run {base_run} has "
                                      f"{base_config.get(field)!r}; validate every run on the same starts with the same policy")
-    agent = {field: configs["jiti"].get(field) for field in AGENT_FIELDS}
+    agent = _agent(configs["jiti"])
     if always_run is not None:
-        _refuse_other_agent(always_run, agent, {field: configs["always"].get(field) for field in AGENT_FIELDS},
-                            f"the JITI run {jiti_run}'s")
+        _refuse_other_agent(always_run, agent, configs["always"], f"the JITI run {jiti_run}'s")
     if not 0 < budget <= 1:
         raise UserInputError(f"gate budget must be in (0, 1] (a share of always's interventions), got {budget}")
     tasks = _paired_effects(base, runs)
