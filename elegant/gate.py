@@ -88,8 +88,8 @@ def _agent(config: dict[str, Any]) -> dict[str, Any]:
 def _flat(agent: dict[str, Any]) -> dict[str, Any]:
     """The AGENT_FIELDS of `agent` (a run's config or a gate's "agent") with the JITI settings spelled out
     as "jiti.<setting>", so a mismatch names the setting."""
-    jiti = agent.get("jiti")
-    flat = {field: agent.get(field) for field in AGENT_FIELDS if field != "jiti"}
+    flat = _agent(agent)
+    jiti = flat.pop("jiti")
     return {**flat, **({f"jiti.{k}": v for k, v in sorted(jiti.items())} if isinstance(jiti, dict) else {"jiti": jiti})}
 
 
