@@ -285,6 +285,7 @@ def _rank_check(args: argparse.Namespace) -> dict:
 
 def _eval_args(p: argparse.ArgumentParser) -> None:
     from elegant.jiti import MODES, THRESHOLD_MODES, TRIGGERS, WARMUPS  # light: no torch
+    from elegant.policies.protocol import POLICY_ACTS
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
@@ -292,6 +293,9 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--critic", help="critic directory (from train-critic), or comma-separated ones: an ensemble whose members "
                    "must all prefer an override; required for jiti and always")
     p.add_argument("--mode", choices=MODES, default="jiti")
+    p.add_argument("--policy-act", choices=POLICY_ACTS, default="mode",
+                   help="how the BC policy acts: its mixture's most likely mean (mode, deterministic) or a draw from the mixture "
+                        "at every decision (sample, as LIBERO runs its BC policies)")
     p.add_argument("--episodes", type=int, default=10, help="episodes per task")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="run directory")
@@ -326,7 +330,7 @@ def _eval(args: argparse.Namespace) -> dict:
     summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
                        seed=args.seed, out=args.out, resume=args.resume, perturbation=args.perturbation,
                        jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"),
-                       gate=args.gate, workers=args.workers)
+                       gate=args.gate, workers=args.workers, policy_act=args.policy_act)
     return {k: v for k, v in summary.items() if k != "per_task"}
 
 

@@ -79,12 +79,15 @@ def _describe(obj: Any) -> str | None:
     return f"{named.__module__}.{named.__qualname__}"
 
 
-def open_policy(policy: Any) -> Any:
-    """A policy directory loaded (`elegant.load_policy`), or a callable passed through."""
+def open_policy(policy: Any, act: str = "mode") -> Any:
+    """A policy directory loaded (`elegant.load_policy`, acting as `act` says: "mode" or "sample"), or a
+    callable passed through (it decides its own actions, so `act` must stay "mode")."""
     if isinstance(policy, (str, os.PathLike)):
         from elegant.policies import load_policy
 
-        return load_policy(policy)
+        return load_policy(policy, act=act)
+    if act != "mode":
+        raise UserInputError(f"policy act {act!r} applies to a BC policy directory; a {type(policy).__name__} decides its own actions")
     if not callable(policy):
         raise UserInputError(f"policy: expected a policy directory or a callable obs -> action, got {type(policy).__name__}")
     return policy
@@ -101,9 +104,10 @@ def open_critic(critic: Any) -> Any:
     return critic
 
 
-def build_agent(policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any]) -> JITI:
-    """The evaluated agent: `policy` and `critic` opened (directories or objects) and wrapped in JITI."""
-    return JITI(open_policy(policy), open_critic(critic), mode=mode, seed=seed, **settings)
+def build_agent(policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any], policy_act: str = "mode") -> JITI:
+    """The evaluated agent: `policy` (acting as `policy_act` says) and `critic` opened (directories or
+    objects) and wrapped in JITI."""
+    return JITI(open_policy(policy, policy_act), open_critic(critic), mode=mode, seed=seed, **settings)
 
 
 def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
@@ -116,7 +120,7 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
         # runs from before chunking (one action per decision), before mode "random" (so its rate had no
         # effect), before a subset of init states could be chosen, before the minimum gain (0: none) and
         # before the one-sided trigger, the override budget and the steered warm-up
-        added = {"init_states": None, "jiti": {"chunk": 1, "random_rate": config["jiti"]["random_rate"], "min_gain": 0.0, "trigger": "deviation",
+        added = {"init_states": None, "policy_act": "mode", "jiti": {"chunk": 1, "random_rate": config["jiti"]["random_rate"], "min_gain": 0.0, "trigger": "deviation",
                                                "max_overrides": None, "warmup": "base"}}
         changed = changed_fields(read_json_file(path, "run config"), config, ignore=("episodes",), added=added)
         if changed:
@@ -177,6 +181,7 @@ def evaluate(
     init_states: Sequence[int] | None = None,
     gate: str | os.PathLike | None = None,
     workers: int = 1,
+    policy_act: str = "mode",
 ) -> dict[str, Any]:
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
     object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
@@ -184,6 +189,8 @@ def evaluate(
     a file from `elegant gate` (`elegant.gate`) naming the mode each task runs in (base, jiti or always).
     `workers`: processes running episodes side by side (`base_suites.parallel`); the numbers do not
     depend on it, and with more than one the policy and critic must be directories or picklable.
+    `policy_act`: how a BC policy directory acts, "mode" (deterministic) or "sample" (a draw from its
+    mixture at every decision, as LIBERO runs its BC policies; `elegant.policies.bc_policy`).
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,
@@ -206,9 +213,10 @@ def evaluate(
     workers = check_workers(workers)
     if workers > 1:
         check_picklable((policy, critic), "the policy or the critic")
-    agent = build_agent(policy, critic, mode, seed, settings)
+    agent = build_agent(policy, critic, mode, seed, settings, policy_act)
     chosen = None if init_states is None else sorted({int(i) for i in init_states})
-    described = {"policy": _describe(policy), "critic": _describe(critic), "jiti": {k: v for k, v in agent.config().items() if k != "mode"}}
+    described = {"policy": _describe(policy), "policy_act": policy_act, "critic": _describe(critic),
+                 "jiti": {k: v for k, v in agent.config().items() if k != "mode"}}
     task_modes = None
     if gate is not None:
         from elegant.gate import read_gate
@@ -235,7 +243,7 @@ def evaluate(
     jobs = [EvalJob(index, e, mode if task_modes is None else task_modes[task_key(suite, index)])
             for index in indices for e in range(int(episodes)) if (task_key(suite, index), e) not in done]
     # the agent built here serves a serial run; worker processes each build their own from the same inputs
-    make_worker = partial(EpisodeRunner, agent if workers == 1 else partial(build_agent, policy, critic, mode, seed, settings),
+    make_worker = partial(EpisodeRunner, agent if workers == 1 else partial(build_agent, policy, critic, mode, seed, settings, policy_act),
                           config, str(out))
     with tqdm(total=len(indices) * int(episodes), initial=len(indices) * int(episodes) - len(jobs),
               desc=f"eval {mode}", unit="ep", disable=not progress) as bar:

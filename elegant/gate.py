@@ -46,7 +46,8 @@ GATE_FORMAT = "libero-elegant-gate/3"
 GATED_MODES = ("jiti", "always")
 # the fields of a run's config.json that decide what a gated task's JITI or `always` does: a gate's
 # choices hold only for the policy, critic and JITI settings its validation runs used
-AGENT_FIELDS = ("policy", "critic", "jiti")
+AGENT_FIELDS = ("policy", "policy_act", "critic", "jiti")
+AGENT_DEFAULTS = {"policy_act": "mode"}  # what runs and gates from before a field existed did
 INTERVENTION_BUDGET = 0.4  # issue 7's bound on JITI: at most 40% of `always`'s interventions
 
 
@@ -82,7 +83,7 @@ def _paired_effects(base: dict[tuple[str, int], dict[str, Any]], runs: dict[str,
 
 def _agent(config: dict[str, Any]) -> dict[str, Any]:
     """The AGENT_FIELDS of a run's config: what a gate records as the JITI it validated."""
-    return {field: config.get(field) for field in AGENT_FIELDS}
+    return {field: config.get(field, AGENT_DEFAULTS.get(field)) for field in AGENT_FIELDS}
 
 
 def _flat(agent: dict[str, Any]) -> dict[str, Any]:

@@ -11,7 +11,7 @@ from elegant.policies.adapters import (
     TORCHRL_LIBERO_STATE, CallablePolicy, LayoutSlice, LeRobotPolicy, PolicyAdapter, StateFn, TorchRLPolicy, as_policy,
     lerobot_libero_state,
 )
-from elegant.policies.protocol import ACTION_DIM, ChunkedPolicy, GaussianCandidates, Policy, as_action, chunk_of
+from elegant.policies.protocol import ACTION_DIM, POLICY_ACTS, ChunkedPolicy, GaussianCandidates, Policy, as_action, chunk_of
 
 _LAZY = {
     "BCPolicy": "elegant.policies.bc_policy",
@@ -20,7 +20,7 @@ _LAZY = {
 }
 
 __all__ = [
-    "ACTION_DIM", "BCPolicy", "CallablePolicy", "ChunkedPolicy", "GaussianCandidates", "LayoutSlice", "LeRobotPolicy", "Policy",
+    "ACTION_DIM", "BCPolicy", "CallablePolicy", "ChunkedPolicy", "GaussianCandidates", "LayoutSlice", "LeRobotPolicy", "POLICY_ACTS", "Policy",
     "PolicyAdapter", "StateFn", "TORCHRL_LIBERO_STATE", "TorchRLPolicy", "as_action", "as_policy", "chunk_of", "lerobot_libero_state",
     "load_policy", "train_policy",
 ]

@@ -1,9 +1,16 @@
-"""The trained BC-GMM policy at run time: deterministic actions, GMM candidates, per-episode history.
+"""The trained BC-GMM policy at run time: its actions, GMM candidates, per-episode history.
 
-The action is the mean of the mixture's most likely component (LIBERO evaluates its GMM policies with
-little or no noise), so evaluation is deterministic; `sample` draws from the full mixture with a seeded
-generator, which is what JITI asks for at critical moments. Plain torch modules under
-`torch.inference_mode` keep one decision well under a millisecond on one CPU thread.
+How the policy acts (`act`, one of POLICY_ACTS):
+- "mode" (the default): the mean of the mixture's most likely component, so evaluation is deterministic
+  and the policy executes its most common way of doing the task.
+- "sample": a full draw from the mixture at every decision, as LIBERO evaluates its own BC policies
+  (`dist.sample()` of the GMM head, with `low_eval_noise` off by default). A policy imitating demos of
+  mixed quality then executes its sloppier modes as often as it learned them, the setting of
+  LIBERO-Elegant's stochastic VLAs. The draws come from their own seeded generator, apart from the
+  candidates', so JITI asking for candidates does not change what the base policy executes next.
+The `sample` method draws candidates from the full mixture with another seeded generator: what JITI
+asks for at critical moments. Plain torch modules under `torch.inference_mode` keep one decision well under a
+millisecond on one CPU thread.
 
 A policy trained with `chunk` > 1 decides a chunk of actions at once (`plan`), executes it open-loop and
 decides again when it is used up; between decisions it still sees every observation (`observe`), so its
@@ -19,11 +26,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from base_suites.errors import UserInputError
+from base_suites.errors import UserInputError, unknown_choice
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet, gmm_mode, gmm_sample
-from elegant.policies.protocol import ACTION_DIM, Observation, check_count
+from elegant.policies.protocol import ACTION_DIM, POLICY_ACTS, Observation, check_count
+
+_ACT_STREAM = 0x5A17  # offsets the execution generator's seed from the candidates' (same episode seed)
 
 
 class BCPolicy:
@@ -35,13 +44,18 @@ class BCPolicy:
     single-task policy also works without metadata, checking only the state width.
     """
 
-    def __init__(self, net: BCNet, features: BCFeatures, *, path: str = "policy", seed: int = 0, config: Mapping[str, Any] | None = None) -> None:
+    def __init__(self, net: BCNet, features: BCFeatures, *, path: str = "policy", seed: int = 0, config: Mapping[str, Any] | None = None,
+                 act: str = "mode") -> None:
+        if act not in POLICY_ACTS:
+            raise unknown_choice("policy act", act, POLICY_ACTS)
+        self.act = act
         self.net = net.eval()
         self.features = features
         self.path = path
         self.config = dict(config or {})
         self.chunk = int(self.config.get("model", {}).get("chunk", 1))
         self.generator = torch.Generator()
+        self._act_generator = torch.Generator()
         self._window: deque[np.ndarray] = deque(maxlen=features.history)
         self._queue: deque[np.ndarray] = deque()
         self._last_state: np.ndarray | None = None
@@ -64,6 +78,7 @@ class BCPolicy:
             self.task = None
         if seed is not None:
             self.generator.manual_seed(int(seed))
+            self._act_generator.manual_seed(int(seed) + _ACT_STREAM)
 
     def _state(self, obs: Observation) -> np.ndarray:
         if "state" not in obs:
@@ -106,11 +121,16 @@ class BCPolicy:
         self._push(self._state(obs))
 
     def plan(self, obs: Observation) -> np.ndarray:
-        """The decision at `obs`: (chunk, 7) actions, the mean of the mixture's most likely component."""
+        """The decision at `obs`: (chunk, 7) actions, the mean of the mixture's most likely component, or
+        with `act="sample"` one draw from the mixture."""
         self._push(self._state(obs))
         with torch.inference_mode():
-            logits, means, _ = self._distribution()
-            return gmm_mode(logits, means)[0].double().numpy().reshape(self.chunk, ACTION_DIM)
+            logits, means, stds = self._distribution()
+            if self.act == "sample":
+                action = gmm_sample(logits, means, stds, 1, self._act_generator)[0]
+            else:
+                action = gmm_mode(logits, means)[0]
+            return action.double().numpy().reshape(self.chunk, ACTION_DIM)
 
     def sample_plans(self, obs: Observation, n: int) -> np.ndarray:
         """n chunks (n, chunk, 7) drawn from the mixture for the decision at `obs`; does not step the history
@@ -126,7 +146,8 @@ class BCPolicy:
         return self.sample_plans(obs, n)[:, 0]
 
 
-def load_policy(path: str, *, seed: int = 0) -> BCPolicy:
-    """Load a directory written by `train_policy` (refused in one line if missing, corrupt or foreign)."""
+def load_policy(path: str, *, seed: int = 0, act: str = "mode") -> BCPolicy:
+    """Load a directory written by `train_policy` (refused in one line if missing, corrupt or foreign),
+    acting as `act` says (see the module docstring)."""
     net, features, config = read_artifact(str(path))
-    return BCPolicy(net, features, path=str(path), seed=seed, config=config)
+    return BCPolicy(net, features, path=str(path), seed=seed, config=config, act=act)

@@ -18,6 +18,7 @@ from base_suites.errors import UserInputError
 ACTION_DIM = 7
 ACTION_LOW = -1.0
 ACTION_HIGH = 1.0
+POLICY_ACTS = ("mode", "sample")  # how a BC policy acts: its mixture's most likely mean, or a draw (elegant.policies.bc_policy)
 
 Observation = Mapping[str, np.ndarray]
 
