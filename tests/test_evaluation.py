@@ -175,13 +175,16 @@ def test_bad_arguments_are_user_errors(tmp_path):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "jiti", 1, 0, tmp_path)
     with pytest.raises(UserInputError, match="init states"):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, init_states=[])
+    with pytest.raises(UserInputError, match="policy act 'sample' applies to a BC policy directory; a PlungePolicy decides its own"):
+        evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, policy_act="sample")
 
 
 def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(runs):
     out = runs["root"] / "older"
     shutil.copytree(runs["root"] / "full", out)
     config = json.loads((out / "config.json").read_text())
-    del config["init_states"], config["jiti"]["chunk"], config["jiti"]["random_rate"]
+    assert config["policy_act"] == "mode"
+    del config["init_states"], config["jiti"]["chunk"], config["jiti"]["random_rate"], config["policy_act"]
     (out / "config.json").write_text(json.dumps(config))
     assert run(out, resume=True)["episodes"] == 2
 
@@ -205,7 +208,9 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     assert main(common + [a for flag, text, _ in flags.values() for a in (flag, text)]) == 0
     assert calls[-1]["jiti_kwargs"] == {name: value for name, (_, _, value) in flags.items()}
     assert main(common + ["--min-gain", "0.05"]) == 0
-    assert calls[-1]["jiti_kwargs"] == {"min_gain": 0.05}
+    assert calls[-1]["jiti_kwargs"] == {"min_gain": 0.05} and calls[-1]["policy_act"] == "mode"
+    assert main(common + ["--policy-act", "sample"]) == 0
+    assert calls[-1]["policy_act"] == "sample"
 
 
 def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tmp_path):

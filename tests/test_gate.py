@@ -106,9 +106,10 @@ def test_a_gate_holds_only_for_the_policy_critic_and_jiti_settings_it_validated(
     with pytest.raises(UserInputError, match="always: field 'jiti.warmup' is 'base' but the JITI run .*'s is 'steer'"):
         task_gate(base, jiti, steered_differently)
     gate = write_gate(base, jiti, tmp_path / "gate.json")
-    assert gate["agent"] == AGENT
+    assert gate["agent"] == {**AGENT, "policy_act": "mode"}  # runs from before the field acted by the mode
     assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [30], AGENT) == {"libero_goal/0": "jiti"}
     for field, value, shown in (("critic", "/runs/critic_2", "'agent.critic' is '/runs/critic'"),
+                                ("policy_act", "sample", "'agent.policy_act' is 'mode'"),
                                 ("jiti", {"window": 8, "warmup": "steer"}, "'agent.jiti.window' is 4")):
         with pytest.raises(UserInputError, match=f"gate.json: field {shown} but this evaluation's is"):
             read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [30], {**AGENT, field: value})

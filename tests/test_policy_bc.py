@@ -141,6 +141,35 @@ def test_policy_protocol_actions_and_seeded_samples(policy_dir):
     assert not np.array_equal(policy.sample(obs, 16), samples)
 
 
+def test_sampling_policy_acts_by_seeded_draws_apart_from_the_candidates(policy_dir):
+    key, obs = "libero_object/0", {"state": np.linspace(-0.3, 0.3, 8)}
+    mode = load_policy(policy_dir)
+    mode.reset(metadata(key), seed=3)
+    policy = load_policy(policy_dir, act="sample")
+    assert policy.act == "sample"
+
+    def first_actions(seed: int, with_candidates: bool) -> list[np.ndarray]:
+        policy.reset(metadata(key), seed=seed)
+        actions = []
+        for _ in range(3):
+            actions.append(policy(obs))
+            if with_candidates:
+                policy.sample(obs, 16)
+        return actions
+
+    drawn = first_actions(3, with_candidates=False)
+    assert not np.array_equal(drawn[0], mode(obs))  # a draw, not the most likely component's mean
+    assert not np.array_equal(drawn[0], drawn[1])  # a new draw at every decision
+    assert np.abs(np.array(drawn)).max() <= 1.0
+    np.testing.assert_array_equal(first_actions(3, with_candidates=True), drawn)  # candidates draw from their own stream
+    assert not np.array_equal(first_actions(4, with_candidates=False)[0], drawn[0])
+
+
+def test_unknown_policy_act_is_refused(policy_dir):
+    with pytest.raises(UserInputError, match="unknown policy act 'mean'; expected one of: mode, sample"):
+        load_policy(policy_dir, act="mean")
+
+
 def test_sample_does_not_advance_the_history(policy_dir):
     key, rng = "libero_object/1", np.random.default_rng(0)
     first, second = ({"state": rng.normal(size=5)} for _ in range(2))
@@ -357,3 +386,11 @@ def test_successful_only_clones_the_successes_and_a_resume_must_agree(tmp_path):
     assert json.load(open(os.path.join(out, "config.json")))["training"]["successful_only"] is True
     with pytest.raises(UserInputError, match="cannot resume"):
         train_policy([path], out, epochs=1, resume=True, **SMALL)
+
+
+def test_evaluation_agents_act_as_asked_in_every_worker(policy_dir):
+    """`build_agent` is what each evaluation worker calls: the act reaches the policy it loads."""
+    from elegant.evaluation import build_agent
+
+    assert build_agent(policy_dir, None, "base", 0, {}).policy.act == "mode"
+    assert build_agent(policy_dir, None, "base", 0, {}, "sample").policy.act == "sample"
