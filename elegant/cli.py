@@ -91,6 +91,14 @@ def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
     add_workers_argument(p, default)
 
 
+def _policy_act_arg(p: argparse.ArgumentParser) -> None:
+    from elegant.policies.protocol import POLICY_ACTS  # light: no torch
+
+    p.add_argument("--policy-act", choices=POLICY_ACTS, default="mode",
+                   help="how the BC policy acts: its mixture's most likely mean (mode, deterministic) or a draw from the mixture "
+                        "at every decision (sample, as LIBERO runs its BC policies)")
+
+
 def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
@@ -120,6 +128,7 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--explore-at", help="instead of --explore: decision steps, e.g. 8,24,40; each episode takes a random "
                    "candidate at one of them (starts cycle first, then the steps), so episodes from one start differ in one decision")
     p.add_argument("--trust-radius", type=float, default=0.3)
+    _policy_act_arg(p)
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)")
     p.add_argument("--perturbation", help="as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states")
     p.add_argument("--max-steps", type=int)
@@ -137,7 +146,7 @@ def _rollouts(args: argparse.Namespace) -> dict:
                             explore_at=parse_indices(args.explore_at, "--explore-at"), trust_radius=args.trust_radius,
                             init_states=parse_indices(args.init_states, "--init-states"),
                             seed=args.seed, max_steps=args.max_steps, perturbation=args.perturbation, resume=args.resume,
-                            workers=args.workers)
+                            workers=args.workers, policy_act=args.policy_act)
 
 
 def _import_args(p: argparse.ArgumentParser) -> None:
@@ -285,7 +294,6 @@ def _rank_check(args: argparse.Namespace) -> dict:
 
 def _eval_args(p: argparse.ArgumentParser) -> None:
     from elegant.jiti import MODES, THRESHOLD_MODES, TRIGGERS, WARMUPS  # light: no torch
-    from elegant.policies.protocol import POLICY_ACTS
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
@@ -293,9 +301,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--critic", help="critic directory (from train-critic), or comma-separated ones: an ensemble whose members "
                    "must all prefer an override; required for jiti and always")
     p.add_argument("--mode", choices=MODES, default="jiti")
-    p.add_argument("--policy-act", choices=POLICY_ACTS, default="mode",
-                   help="how the BC policy acts: its mixture's most likely mean (mode, deterministic) or a draw from the mixture "
-                        "at every decision (sample, as LIBERO runs its BC policies)")
+    _policy_act_arg(p)
     p.add_argument("--episodes", type=int, default=10, help="episodes per task")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="run directory")

@@ -75,9 +75,9 @@ class _PolicySource:
 
 
 def _policy_source(policy: Any, agent_settings: Mapping[str, Any], suite: str, seed: int, init_states: Sequence[int] | None,
-                   policy_name: str, explore_at: Sequence[int] | None) -> _PolicySource:
+                   policy_name: str, explore_at: Sequence[int] | None, policy_act: str = "mode") -> _PolicySource:
     """The rollouts' actor, built from picklable inputs (a worker process builds its own)."""
-    agent = JITI(open_policy(policy), None, seed=seed, **agent_settings)
+    agent = JITI(open_policy(policy, policy_act), None, seed=seed, **agent_settings)
     return _PolicySource(agent, suite, seed, init_states, policy_name, explore_at)
 
 
@@ -129,8 +129,9 @@ def collect_rollouts(
     resume: bool = False,
     progress: bool = True,
     workers: int = 1,
+    policy_act: str = "mode",
 ) -> dict[str, Any]:
-    """Roll `policy` (a directory or a callable) out `episodes` times per task of `suite` (None: every task of it)
+    """Roll `policy` (a directory or a callable, acting as `policy_act` says: see `elegant.evaluate`) out `episodes` times per task of `suite` (None: every task of it)
     and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
     the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
     policy as it is; more episodes than `init_states` then repeat episodes exactly). `perturbation`: as in
@@ -154,7 +155,7 @@ def collect_rollouts(
                       "trust_radius": trust_radius, "n_candidates": n_candidates}
     name = policy if isinstance(policy, str) else type(policy).__name__
     make_source = partial(_policy_source, policy, agent_settings, suite, seed, None if init_states is None else list(init_states), name,
-                          explore_at)
+                          explore_at, policy_act)
     source = make_source()  # here for the settings it records, and to refuse a bad policy before any env is built
     settings = {"policy": name, "rollout": source.agent.config(), "init_states": source.init_states, "max_steps": max_steps}
     if explore_at is not None:  # only then: files collected before it existed still resume
@@ -162,6 +163,8 @@ def collect_rollouts(
         settings["branches_share_reset_seed"] = True
     if perturbation:  # likewise
         settings["perturbation"] = perturbation
+    if policy_act != "mode":  # likewise
+        settings["policy_act"] = policy_act
     path = collect_episodes(suite, tasks, episodes, out, (lambda: source) if workers == 1 else make_source, seed=seed, resume=resume,
                             progress=progress, desc="rollouts", horizon=lambda spec: max_steps or spec.default_max_steps,
                             settings=settings, perturbation=perturbation, workers=workers)
