@@ -136,6 +136,12 @@ def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
     assert not list(tmp_path.iterdir())  # refused before any file was made
 
 
+def test_only_a_bc_policy_directory_can_be_asked_to_act_by_sampling(tmp_path):
+    with pytest.raises(UserInputError, match="policy act 'sample' applies to a BC policy directory; a Lower decides its own actions"):
+        collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), policy_act="sample", progress=False)
+    assert not list(tmp_path.iterdir())
+
+
 def test_init_state_ranges_parse_and_bad_ones_are_refused_in_one_line():
     from elegant.cli import parse_indices
 
