@@ -16,8 +16,9 @@ from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
-from base_suites.errors import UserInputError
+from base_suites.errors import UserInputError, unknown_choice
 from base_suites.parallel import add_workers_argument
+from elegant.policies.protocol import POLICY_ACTS
 
 MODES = ("base", "always", "jiti")
 
@@ -67,6 +68,9 @@ class ChainConfig:
     `max_overrides`: JITI's budget of executed alternatives per episode (None: no limit).
     `warmup`: what JITI's first `window` decisions execute, "base" (the base plan) or "steer" (`JITI`'s `warmup`).
     `candidates`: actions JITI (and `always`) draw from the policy per decision (None: JITI's default, 16).
+    `policy_act`: how the BC policy acts in every evaluation (validation too), "mode" or "sample" (a draw
+    from its mixture per decision, as LIBERO runs its BC policies; `elegant.policies.bc_policy`). The
+    rollouts for the critic keep the mode, so one critic serves both.
     `jiti_gate`: before the evaluation, the base policy and JITI each run `episodes` per task from the
     rollouts' starts (validation, never the evaluated ones), and JITI is then evaluated only on the tasks
     where it made more episodes elegant than it spoiled there (`elegant.gate`); needs `critic_rollouts`.
@@ -110,6 +114,7 @@ class ChainConfig:
     warmup: str | None = None
     jiti_gate: bool = False
     candidates: int | None = None
+    policy_act: str = "mode"
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -122,6 +127,8 @@ class ChainConfig:
             raise UserInputError(f"chain policy_modes must be >= 1, got {self.policy_modes}")
         if not self.policy_obs_noise >= 0:
             raise UserInputError(f"chain policy_obs_noise must be >= 0, got {self.policy_obs_noise}")
+        if self.policy_act not in POLICY_ACTS:
+            raise unknown_choice("chain policy_act", self.policy_act, POLICY_ACTS)
         if self.critic_rollouts < 0:
             raise UserInputError(f"chain critic_rollouts must be >= 0, got {self.critic_rollouts}")
         if not 0.0 <= self.rollout_explore <= 1.0:
@@ -175,6 +182,8 @@ def add_chain_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy (and of the critic)")
     parser.add_argument("--max-steps", type=int, help="episode horizon (default: the suites')")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--policy-act", choices=POLICY_ACTS, default="mode",
+                        help="how the BC policy acts in the evaluations: its mixture's most likely mean (mode) or a draw (sample)")
     add_workers_argument(parser)
 
 
@@ -184,7 +193,7 @@ def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
         suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
         demos=args.demos, policy_epochs=args.policy_epochs, policy_modes=args.policy_modes,
         policy_successful_only=args.successful_only, policy_obs_noise=args.obs_noise, episodes=args.episodes, chunk=args.chunk,
-        max_steps=args.max_steps, seed=args.seed, **fields,
+        max_steps=args.max_steps, seed=args.seed, policy_act=args.policy_act, **fields,
     )
 
 
@@ -210,7 +219,7 @@ QUICKSTART = ChainConfig(
 _ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
                 "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
                 "critic_explored_fraction", "trigger", "critic_members", "max_overrides", "warmup", "jiti_gate",
-                "candidates")
+                "candidates", "policy_act")
 
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:
@@ -329,7 +338,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
                 validation[mode] = os.path.join(out, f"validate_{mode}_{suite}")
                 evaluate(suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes, seed=cfg.seed, out=validation[mode],
                          resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode), max_steps=cfg.max_steps,
-                         init_states=rollout_starts, workers=workers)
+                         init_states=rollout_starts, workers=workers, policy_act=cfg.policy_act)
             gates[suite] = os.path.join(out, f"gate_{suite}.json")
             write_gate(validation["base"], validation["jiti"], gates[suite], always_run=validation.get("always"))
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
@@ -340,6 +349,7 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
                 suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes,
                 seed=cfg.seed, out=runs[mode][suite], resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode),
                 max_steps=cfg.max_steps, init_states=eval_starts, gate=gates[suite] if mode == "jiti" else None, workers=workers,
+                policy_act=cfg.policy_act,
             )
     report_dir = os.path.join(out, "report")
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)

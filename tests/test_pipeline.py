@@ -58,6 +58,8 @@ def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
         run_chain(out, ChainConfig(modes=("sometimes",)), progress=False)
     with pytest.raises(UserInputError, match="policy_obs_noise must be >= 0"):
         run_chain(out, replace(TINY, policy_obs_noise=-0.1), progress=False)
+    with pytest.raises(UserInputError, match="unknown chain policy_act 'mean'; expected one of: mode, sample"):
+        run_chain(out, replace(TINY, policy_act="mean"), progress=False)
 
 
 def test_a_base_only_chain_trains_no_critic(chain, tmp_path):
@@ -69,6 +71,21 @@ def test_a_base_only_chain_trains_no_critic(chain, tmp_path):
     summary = json.load(open(os.path.join(result["runs"]["base"]["libero_object"], "summary.json")))
     assert summary["config"]["critic"] is None and summary["episodes"] == 1
     assert set(result) >= {"base", "per_suite"} and "jiti" not in result
+
+
+def test_a_chain_can_evaluate_its_policy_acting_by_draws_from_the_mixture(chain, tmp_path):
+    """`policy_act="sample"` reaches the evaluation: the trained policy acts by seeded draws on the real
+    simulator, so the same chain run twice gives the same episodes."""
+    copy_data_and_policy(chain[0], tmp_path)
+    result = run_chain(str(tmp_path), replace(TINY, modes=("base",), policy_act="sample"), progress=False)
+    run = result["runs"]["base"]["libero_object"]
+    assert json.load(open(os.path.join(run, "config.json")))["policy_act"] == "sample"
+    traces = os.path.join(run, "traces")
+    first = [json.load(open(os.path.join(traces, name)))["segments"] for name in sorted(os.listdir(traces))]
+    shutil.rmtree(run)
+    again = run_chain(str(tmp_path), replace(TINY, modes=("base",), policy_act="sample"), progress=False)
+    assert again["base"] == result["base"]
+    assert [json.load(open(os.path.join(traces, name)))["segments"] for name in sorted(os.listdir(traces))] == first
 
 
 def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_starts(chain, tmp_path):
