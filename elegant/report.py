@@ -188,7 +188,7 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
     lines = [
         f"# Evaluation: {cfg['suite']}, mode `{cfg['mode']}`",
         "",
-        f"- policy: `{cfg['policy']}`",
+        f"- policy: `{cfg['policy']}` (policy act: {cfg.get('policy_act', 'mode')})",
         f"- critic: `{cfg['critic']}`",
         f"- tasks: {', '.join(map(str, cfg['tasks']))}; episodes per task: {cfg['episodes']}; seed: {cfg['seed']}",
         f"- perturbation: {cfg['perturbation'] or 'none'}; max steps: {cfg['max_steps'] or 'suite default'}",
@@ -264,12 +264,12 @@ def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     groups: dict[str, dict[str, Mapping[str, Any]]] = {}
     for s in summaries:
         cfg = s["config"]
-        key = json.dumps([cfg["suite"], cfg["tasks"], cfg["policy"], cfg["critic"], cfg["mode"]])
+        key = json.dumps([cfg["suite"], cfg["tasks"], cfg["policy"], cfg["critic"], cfg["mode"], cfg.get("policy_act", "mode")])
         groups.setdefault(key, {})[perturbation_axis(cfg["perturbation"])] = s
     out = {}
     for key, by_axis in groups.items():
         if "ori" in by_axis and len(by_axis) > 1:
-            suite, _, policy, _, mode = json.loads(key)
+            suite, _, policy, _, mode, _ = json.loads(key)
             name = f"{suite} / {mode} / {os.path.basename(str(policy))}"
             out[name] = {
                 "success": robustness_metrics({a: s["success_rate"] for a, s in by_axis.items()}),

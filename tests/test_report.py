@@ -10,8 +10,8 @@ from elegant.report import atomic_write, compare_runs, perturbation_axis, write_
 PNG = b"\x89PNG\r\n\x1a\n"
 
 
-def make_run(path, mode, successes, perturbation=None, with_q=True):
-    """A run directory as `evaluate` leaves it: config, records with traces, summary."""
+def make_run(path, mode, successes, perturbation=None, with_q=True, **config_fields):
+    """A run directory as `evaluate` leaves it: config (plus `config_fields`), records with traces, summary."""
     (path / "traces").mkdir(parents=True)
     records = []
     for i, ok in enumerate(successes):
@@ -37,7 +37,8 @@ def make_run(path, mode, successes, perturbation=None, with_q=True):
                         "env_step_time": 1e-2, "trace": name})
     config = {"suite": "libero_goal", "tasks": [0, 1], "policy": "/p", "critic": "/c", "mode": mode, "episodes": len(successes), "seed": 0,
               "perturbation": perturbation, "max_steps": None, "obs": "lowdim",
-              "jiti": {"window": 10, "threshold": 1.0, "threshold_mode": "absolute", "n_candidates": 16, "policy_adapter": "BCPolicy"}}
+              "jiti": {"window": 10, "threshold": 1.0, "threshold_mode": "absolute", "n_candidates": 16, "policy_adapter": "BCPolicy"},
+              **config_fields}
     summary = {"config": config, **summarize(records)}
     (path / "summary.json").write_text(json.dumps(summary))
     (path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
@@ -59,6 +60,10 @@ def test_run_report_writes_markdown_and_plots(tmp_path):
     assert "| success rate [95% interval] | 75.0% [30.1%, 95.4%] |" in md and "| ESR (elegant success rate) [95% interval] | 50.0% [15.0%, 85.0%] |" in md
     assert "| succeeded, but violated: collision | 0.0% |" in md
     assert "| libero_goal/1 | 2 | 50.0% | 0.0% |" in md and "## Q trace: libero_goal/0, episode 0" in md
+    assert "- policy: `/p` (policy act: mode)" in md  # a run from before the act was recorded
+    summary, records = make_run(tmp_path / "sampled", "jiti", [True], policy_act="sample")
+    write_run_report(tmp_path / "sampled", summary, records)
+    assert "- policy: `/p` (policy act: sample)" in (tmp_path / "sampled" / "report.md").read_text()
 
 
 def test_run_report_without_critic_has_no_q_trace(tmp_path):
@@ -80,6 +85,10 @@ def test_compare_runs_side_by_side_with_robustness(tmp_path):
     assert group["elegant"]["acc_ori"] == 0.5 and group["elegant"]["acc"] == {"init": 0.25}
     assert_png(tmp_path / "cmp" / "comparison.png")
     assert (tmp_path / "cmp" / "comparison.md").read_text().startswith(result["markdown"])
+    make_run(tmp_path / "init_sampled", "jiti", [False] * 4, perturbation="init:3", policy_act="sample")
+    again = compare_runs([tmp_path / "ori", tmp_path / "init", tmp_path / "init_sampled"])
+    (group,) = again["robustness"].values()  # the sampling policy's perturbed run has no unperturbed partner
+    assert group["success"]["acc"] == {"init": 0.25}
 
 
 def test_compare_runs_pairs_later_runs_with_the_first_on_shared_starts(tmp_path):
