@@ -92,11 +92,9 @@ def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
 
 
 def _policy_act_arg(p: argparse.ArgumentParser) -> None:
-    from elegant.policies.protocol import POLICY_ACTS  # light: no torch
+    from elegant.policies.protocol import add_policy_act_argument  # light: no torch
 
-    p.add_argument("--policy-act", choices=POLICY_ACTS, default="mode",
-                   help="how the BC policy acts: its mixture's most likely mean (mode, deterministic) or a draw from the mixture "
-                        "at every decision (sample, as LIBERO runs its BC policies)")
+    add_policy_act_argument(p)
 
 
 def _demos_args(p: argparse.ArgumentParser) -> None:

@@ -36,6 +36,7 @@ from base_suites.seeds import derive_seed
 from elegant.episode_log import EpisodeLog, run_records
 from elegant.jiti import JITI
 from elegant.metrics import summarize
+from elegant.policies.protocol import DEFAULT_POLICY_ACT
 from elegant.report import write_run_report
 
 JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius", "random_rate", "min_gain", "trigger",
@@ -120,7 +121,7 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
         # runs from before chunking (one action per decision), before mode "random" (so its rate had no
         # effect), before a subset of init states could be chosen, before the minimum gain (0: none) and
         # before the one-sided trigger, the override budget and the steered warm-up
-        added = {"init_states": None, "policy_act": "mode", "jiti": {"chunk": 1, "random_rate": config["jiti"]["random_rate"], "min_gain": 0.0, "trigger": "deviation",
+        added = {"init_states": None, "policy_act": DEFAULT_POLICY_ACT, "jiti": {"chunk": 1, "random_rate": config["jiti"]["random_rate"], "min_gain": 0.0, "trigger": "deviation",
                                                "max_overrides": None, "warmup": "base"}}
         changed = changed_fields(read_json_file(path, "run config"), config, ignore=("episodes",), added=added)
         if changed:

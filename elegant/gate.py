@@ -41,13 +41,14 @@ from typing import Any
 from base_suites import UserInputError
 from base_suites.atomic import atomic_write, read_json_file
 from elegant.episode_log import EpisodeLog
+from elegant.policies.protocol import DEFAULT_POLICY_ACT
 
 GATE_FORMAT = "libero-elegant-gate/3"
 GATED_MODES = ("jiti", "always")
 # the fields of a run's config.json that decide what a gated task's JITI or `always` does: a gate's
 # choices hold only for the policy, critic and JITI settings its validation runs used
 AGENT_FIELDS = ("policy", "policy_act", "critic", "jiti")
-AGENT_DEFAULTS = {"policy_act": "mode"}  # what runs and gates from before a field existed did
+AGENT_DEFAULTS = {"policy_act": DEFAULT_POLICY_ACT}  # what runs and gates from before a field existed did
 INTERVENTION_BUDGET = 0.4  # issue 7's bound on JITI: at most 40% of `always`'s interventions
 
 

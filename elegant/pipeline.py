@@ -18,7 +18,7 @@ from typing import Any
 from base_suites.atomic import atomic_write, changed_fields, read_json_file
 from base_suites.errors import UserInputError, unknown_choice
 from base_suites.parallel import add_workers_argument
-from elegant.policies.protocol import POLICY_ACTS
+from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, add_policy_act_argument
 
 MODES = ("base", "always", "jiti")
 
@@ -114,7 +114,7 @@ class ChainConfig:
     warmup: str | None = None
     jiti_gate: bool = False
     candidates: int | None = None
-    policy_act: str = "mode"
+    policy_act: str = DEFAULT_POLICY_ACT
 
     def validate(self) -> None:
         unknown = [m for m in self.modes if m not in MODES]
@@ -182,8 +182,7 @@ def add_chain_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy (and of the critic)")
     parser.add_argument("--max-steps", type=int, help="episode horizon (default: the suites')")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--policy-act", choices=POLICY_ACTS, default="mode",
-                        help="how the BC policy acts in the evaluations: its mixture's most likely mean (mode) or a draw (sample)")
+    add_policy_act_argument(parser)
     add_workers_argument(parser)
 
 

@@ -25,6 +25,7 @@ from base_suites.perturbations import parse_perturbations
 from elegant.episode_log import EpisodeLog, run_records
 from elegant.jiti import choose_candidate, eligible_candidates
 from elegant.metrics import paired_comparison, robustness_metrics, summarize
+from elegant.policies.protocol import DEFAULT_POLICY_ACT
 
 
 def _save(fig, path: Path) -> Path:
@@ -188,7 +189,7 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
     lines = [
         f"# Evaluation: {cfg['suite']}, mode `{cfg['mode']}`",
         "",
-        f"- policy: `{cfg['policy']}` (policy act: {cfg.get('policy_act', 'mode')})",
+        f"- policy: `{cfg['policy']}` (policy act: {cfg.get('policy_act', DEFAULT_POLICY_ACT)})",
         f"- critic: `{cfg['critic']}`",
         f"- tasks: {', '.join(map(str, cfg['tasks']))}; episodes per task: {cfg['episodes']}; seed: {cfg['seed']}",
         f"- perturbation: {cfg['perturbation'] or 'none'}; max steps: {cfg['max_steps'] or 'suite default'}",
@@ -264,7 +265,7 @@ def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     groups: dict[str, dict[str, Mapping[str, Any]]] = {}
     for s in summaries:
         cfg = s["config"]
-        key = json.dumps([cfg["suite"], cfg["tasks"], cfg["policy"], cfg["critic"], cfg["mode"], cfg.get("policy_act", "mode")])
+        key = json.dumps([cfg["suite"], cfg["tasks"], cfg["policy"], cfg["critic"], cfg["mode"], cfg.get("policy_act", DEFAULT_POLICY_ACT)])
         groups.setdefault(key, {})[perturbation_axis(cfg["perturbation"])] = s
     out = {}
     for key, by_axis in groups.items():

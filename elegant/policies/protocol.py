@@ -8,6 +8,7 @@ for deterministic policies lives here because every adapter shares it.
 """
 from __future__ import annotations
 
+import argparse
 from collections.abc import Mapping
 from typing import Any, Protocol, runtime_checkable
 
@@ -19,6 +20,7 @@ ACTION_DIM = 7
 ACTION_LOW = -1.0
 ACTION_HIGH = 1.0
 POLICY_ACTS = ("mode", "sample")  # how a BC policy acts: its mixture's most likely mean, or a draw (elegant.policies.bc_policy)
+DEFAULT_POLICY_ACT = "mode"  # also what runs, gates and chains recorded before the act was a setting
 
 Observation = Mapping[str, np.ndarray]
 
@@ -109,3 +111,10 @@ class GaussianCandidates:
         out = np.repeat(np.asarray(action, dtype=np.float64).reshape(1, ACTION_DIM), n, axis=0)
         out[1:] += self.rng.normal(0.0, self.scale, size=(n - 1, ACTION_DIM))
         return np.clip(out, ACTION_LOW, ACTION_HIGH)
+
+
+def add_policy_act_argument(parser: argparse.ArgumentParser) -> None:
+    """`--policy-act`, shared by `elegant eval`, `elegant rollouts` and the chain's benchmarks."""
+    parser.add_argument("--policy-act", choices=POLICY_ACTS, default=DEFAULT_POLICY_ACT,
+                        help="how the BC policy acts: its mixture's most likely mean (mode, deterministic) or a draw from the "
+                             "mixture at every decision (sample, as LIBERO runs its BC policies)")
