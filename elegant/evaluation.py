@@ -81,7 +81,7 @@ def _describe(obj: Any) -> str | None:
 
 
 def open_policy(policy: Any, act: str = "mode") -> Any:
-    """A policy directory loaded (`elegant.load_policy`, acting as `act` says: "mode" or "sample"), or a
+    """A policy directory loaded (`elegant.load_policy`, acting as `act` says: one of POLICY_ACTS), or a
     callable passed through (it decides its own actions, so `act` must stay "mode")."""
     if isinstance(policy, (str, os.PathLike)):
         from elegant.policies import load_policy
@@ -190,8 +190,9 @@ def evaluate(
     a file from `elegant gate` (`elegant.gate`) naming the mode each task runs in (base, jiti or always).
     `workers`: processes running episodes side by side (`base_suites.parallel`); the numbers do not
     depend on it, and with more than one the policy and critic must be directories or picklable.
-    `policy_act`: how a BC policy directory acts, "mode" (deterministic) or "sample" (a draw from its
-    mixture at every decision, as LIBERO runs its BC policies; `elegant.policies.bc_policy`).
+    `policy_act`: how a BC policy directory acts, "mode" (deterministic), "sample" (a draw from its
+    mixture at every decision, as LIBERO runs its BC policies) or "component" (a drawn component's mean;
+    `elegant.policies.bc_policy`).
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,

@@ -68,8 +68,8 @@ class ChainConfig:
     `max_overrides`: JITI's budget of executed alternatives per episode (None: no limit).
     `warmup`: what JITI's first `window` decisions execute, "base" (the base plan) or "steer" (`JITI`'s `warmup`).
     `candidates`: actions JITI (and `always`) draw from the policy per decision (None: JITI's default, 16).
-    `policy_act`: how the BC policy acts in every evaluation (validation too), "mode" or "sample" (a draw
-    from its mixture per decision, as LIBERO runs its BC policies; `elegant.policies.bc_policy`). The
+    `policy_act`: how the BC policy acts in every evaluation (validation too), one of POLICY_ACTS
+    (`elegant.policies.bc_policy`: its mixture's most likely mean, a draw, or a drawn component's mean). The
     rollouts for the critic keep the mode, so one critic serves both.
     `jiti_gate`: before the evaluation, the base policy and JITI each run `episodes` per task from the
     rollouts' starts (validation, never the evaluated ones), and JITI is then evaluated only on the tasks

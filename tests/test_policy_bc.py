@@ -165,8 +165,33 @@ def test_sampling_policy_acts_by_seeded_draws_apart_from_the_candidates(policy_d
     assert not np.array_equal(first_actions(4, with_candidates=False)[0], drawn[0])
 
 
+def test_component_act_executes_the_mean_of_a_component_drawn_by_weight(policy_dir):
+    """LIBERO's low_eval_noise: every executed plan is exactly one component's mean, components are
+    drawn in proportion to their weights, and the draws are seeded."""
+    key, obs = "libero_object/0", {"state": np.linspace(-0.3, 0.3, 8)}
+    policy = load_policy(policy_dir, act="component")
+    policy.reset(metadata(key), seed=5)
+    policy.observe(obs)
+    with torch.inference_mode():
+        logits, means, _ = policy._distribution()
+    weights, means = torch.softmax(logits[0], -1).numpy(), means[0].double().numpy()
+    picks = []
+    for _ in range(400):
+        action = policy.plan(obs).reshape(-1)
+        matches = np.flatnonzero(np.all(np.isclose(means, action, atol=1e-6), axis=1))
+        assert matches.size >= 1  # a component's mean, no Gaussian noise on top
+        picks.append(matches[0])  # the history holds only `obs`, so every draw sees the same mixture
+    assert weights.max() < 0.9  # a mixture with more than one component in use, or the check below says little
+    frequencies = np.bincount(picks, minlength=len(weights)) / len(picks)
+    np.testing.assert_allclose(frequencies, weights, atol=0.08)
+    policy.reset(metadata(key), seed=5)
+    again = policy(obs)
+    policy.reset(metadata(key), seed=5)
+    np.testing.assert_array_equal(policy(obs), again)
+
+
 def test_unknown_policy_act_is_refused(policy_dir):
-    with pytest.raises(UserInputError, match="unknown policy act 'mean'; expected one of: mode, sample"):
+    with pytest.raises(UserInputError, match="unknown policy act 'mean'; expected one of: mode, sample, component"):
         load_policy(policy_dir, act="mean")
 
 

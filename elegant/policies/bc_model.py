@@ -52,9 +52,20 @@ def gmm_mode(logits: torch.Tensor, means: torch.Tensor) -> torch.Tensor:
     return means[torch.arange(means.shape[0]), best]
 
 
+def gmm_draw_components(logits: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
+    """n component indices (n,) drawn by the mixture weights of a single row (logits (1, K))."""
+    return torch.multinomial(torch.softmax(logits[0], -1), n, replacement=True, generator=generator)
+
+
+def gmm_component_means(logits: torch.Tensor, means: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
+    """The means (n, A) of n components drawn by weight from a single row: a draw without the Gaussian
+    noise, what LIBERO executes with its GMM head's `low_eval_noise` (scales set to ~0 at evaluation)."""
+    return means[0, gmm_draw_components(logits, n, generator)]
+
+
 def gmm_sample(logits: torch.Tensor, means: torch.Tensor, stds: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
     """Draw n actions (n, A) from the mixture of a single row (logits (1, K)), clipped to [-1, 1]."""
-    component = torch.multinomial(torch.softmax(logits[0], -1), n, replacement=True, generator=generator)
+    component = gmm_draw_components(logits, n, generator)
     noise = torch.randn((n, means.shape[-1]), generator=generator, dtype=means.dtype)
     return (means[0, component] + stds[0, component] * noise).clamp(-1.0, 1.0)
 

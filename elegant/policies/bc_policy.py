@@ -8,6 +8,9 @@ How the policy acts (`act`, one of POLICY_ACTS):
   mixed quality then executes its sloppier modes as often as it learned them, the setting of
   LIBERO-Elegant's stochastic VLAs. The draws come from their own seeded generator, apart from the
   candidates', so JITI asking for candidates does not change what the base policy executes next.
+- "component": a component drawn by its weight, executed at its mean, as LIBERO evaluates with its GMM
+  head's `low_eval_noise` on: the policy still picks among the ways of doing the task it learned, but
+  executes each without the Gaussian jitter around it.
 The `sample` method draws candidates from the full mixture with another seeded generator: what JITI
 asks for at critical moments. Plain torch modules under `torch.inference_mode` keep one decision well under a
 millisecond on one CPU thread.
@@ -29,7 +32,7 @@ import torch
 from base_suites.errors import UserInputError, unknown_choice
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
-from elegant.policies.bc_model import BCNet, gmm_mode, gmm_sample
+from elegant.policies.bc_model import BCNet, gmm_component_means, gmm_mode, gmm_sample
 from elegant.policies.protocol import ACTION_DIM, POLICY_ACTS, Observation, check_count
 
 _ACT_STREAM = 0x5A17  # offsets the execution generator's seed from the candidates' (same episode seed)
@@ -121,13 +124,15 @@ class BCPolicy:
         self._push(self._state(obs))
 
     def plan(self, obs: Observation) -> np.ndarray:
-        """The decision at `obs`: (chunk, 7) actions, the mean of the mixture's most likely component, or
-        with `act="sample"` one draw from the mixture."""
+        """The decision at `obs`: (chunk, 7) actions, the mean of the mixture's most likely component, with
+        `act="sample"` one draw from the mixture, with `act="component"` the mean of a drawn component."""
         self._push(self._state(obs))
         with torch.inference_mode():
             logits, means, stds = self._distribution()
             if self.act == "sample":
                 action = gmm_sample(logits, means, stds, 1, self._act_generator)[0]
+            elif self.act == "component":
+                action = gmm_component_means(logits, means, 1, self._act_generator)[0]
             else:
                 action = gmm_mode(logits, means)[0]
             return action.double().numpy().reshape(self.chunk, ACTION_DIM)

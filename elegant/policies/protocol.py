@@ -19,7 +19,7 @@ from base_suites.errors import UserInputError
 ACTION_DIM = 7
 ACTION_LOW = -1.0
 ACTION_HIGH = 1.0
-POLICY_ACTS = ("mode", "sample")  # how a BC policy acts: its mixture's most likely mean, or a draw (elegant.policies.bc_policy)
+POLICY_ACTS = ("mode", "sample", "component")  # how a BC policy acts: its mixture's most likely mean, a draw, a drawn component's mean (elegant.policies.bc_policy)
 DEFAULT_POLICY_ACT = "mode"  # also what runs, gates and chains recorded before the act was a setting
 
 Observation = Mapping[str, np.ndarray]
@@ -116,5 +116,6 @@ class GaussianCandidates:
 def add_policy_act_argument(parser: argparse.ArgumentParser) -> None:
     """`--policy-act`, shared by `elegant eval`, `elegant rollouts` and the chain's benchmarks."""
     parser.add_argument("--policy-act", choices=POLICY_ACTS, default=DEFAULT_POLICY_ACT,
-                        help="how the BC policy acts: its mixture's most likely mean (mode, deterministic) or a draw from the "
-                             "mixture at every decision (sample, as LIBERO runs its BC policies)")
+                        help="how the BC policy acts: its mixture's most likely mean (mode, deterministic), a draw from the "
+                             "mixture at every decision (sample, as LIBERO runs its BC policies) or the mean of a drawn "
+                             "component (component, LIBERO's low_eval_noise)")
