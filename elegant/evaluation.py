@@ -80,14 +80,14 @@ def _describe(obj: Any) -> str | None:
     return f"{named.__module__}.{named.__qualname__}"
 
 
-def open_policy(policy: Any, act: str = "mode") -> Any:
+def open_policy(policy: Any, act: str = DEFAULT_POLICY_ACT) -> Any:
     """A policy directory loaded (`elegant.load_policy`, acting as `act` says: one of POLICY_ACTS), or a
-    callable passed through (it decides its own actions, so `act` must stay "mode")."""
+    callable passed through (it decides its own actions, so `act` must stay the default)."""
     if isinstance(policy, (str, os.PathLike)):
         from elegant.policies import load_policy
 
         return load_policy(policy, act=act)
-    if act != "mode":
+    if act != DEFAULT_POLICY_ACT:
         raise UserInputError(f"policy act {act!r} applies to a BC policy directory; a {type(policy).__name__} decides its own actions")
     if not callable(policy):
         raise UserInputError(f"policy: expected a policy directory or a callable obs -> action, got {type(policy).__name__}")
@@ -105,7 +105,7 @@ def open_critic(critic: Any) -> Any:
     return critic
 
 
-def build_agent(policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any], policy_act: str = "mode") -> JITI:
+def build_agent(policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any], policy_act: str = DEFAULT_POLICY_ACT) -> JITI:
     """The evaluated agent: `policy` (acting as `policy_act` says) and `critic` opened (directories or
     objects) and wrapped in JITI."""
     return JITI(open_policy(policy, policy_act), open_critic(critic), mode=mode, seed=seed, **settings)
@@ -182,7 +182,7 @@ def evaluate(
     init_states: Sequence[int] | None = None,
     gate: str | os.PathLike | None = None,
     workers: int = 1,
-    policy_act: str = "mode",
+    policy_act: str = DEFAULT_POLICY_ACT,
 ) -> dict[str, Any]:
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
     object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
@@ -190,9 +190,8 @@ def evaluate(
     a file from `elegant gate` (`elegant.gate`) naming the mode each task runs in (base, jiti or always).
     `workers`: processes running episodes side by side (`base_suites.parallel`); the numbers do not
     depend on it, and with more than one the policy and critic must be directories or picklable.
-    `policy_act`: how a BC policy directory acts, "mode" (deterministic), "sample" (a draw from its
-    mixture at every decision, as LIBERO runs its BC policies) or "component" (a drawn component's mean;
-    `elegant.policies.bc_policy`).
+    `policy_act`: how a BC policy directory acts, one of POLICY_ACTS (`elegant.policies.bc_policy`
+    explains each).
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,

@@ -36,6 +36,7 @@ from base_suites.errors import UserInputError
 from base_suites.seeds import derive_seed
 from elegant.evaluation import check_init_states, episode_start, open_policy
 from elegant.jiti import JITI
+from elegant.policies.protocol import DEFAULT_POLICY_ACT
 
 
 class _PolicySource:
@@ -75,7 +76,7 @@ class _PolicySource:
 
 
 def _policy_source(policy: Any, agent_settings: Mapping[str, Any], suite: str, seed: int, init_states: Sequence[int] | None,
-                   policy_name: str, explore_at: Sequence[int] | None, policy_act: str = "mode") -> _PolicySource:
+                   policy_name: str, explore_at: Sequence[int] | None, policy_act: str) -> _PolicySource:
     """The rollouts' actor, built from picklable inputs (a worker process builds its own)."""
     agent = JITI(open_policy(policy, policy_act), None, seed=seed, **agent_settings)
     return _PolicySource(agent, suite, seed, init_states, policy_name, explore_at)
@@ -129,7 +130,7 @@ def collect_rollouts(
     resume: bool = False,
     progress: bool = True,
     workers: int = 1,
-    policy_act: str = "mode",
+    policy_act: str = DEFAULT_POLICY_ACT,
 ) -> dict[str, Any]:
     """Roll `policy` (a directory or a callable, acting as `policy_act` says: see `elegant.evaluate`) out `episodes` times per task of `suite` (None: every task of it)
     and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
@@ -163,7 +164,7 @@ def collect_rollouts(
         settings["branches_share_reset_seed"] = True
     if perturbation:  # likewise
         settings["perturbation"] = perturbation
-    if policy_act != "mode":  # likewise
+    if policy_act != DEFAULT_POLICY_ACT:  # likewise
         settings["policy_act"] = policy_act
     path = collect_episodes(suite, tasks, episodes, out, (lambda: source) if workers == 1 else make_source, seed=seed, resume=resume,
                             progress=progress, desc="rollouts", horizon=lambda spec: max_steps or spec.default_max_steps,

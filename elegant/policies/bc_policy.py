@@ -33,7 +33,7 @@ from base_suites.errors import UserInputError, unknown_choice
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet, gmm_component_means, gmm_mode, gmm_sample
-from elegant.policies.protocol import ACTION_DIM, POLICY_ACTS, Observation, check_count
+from elegant.policies.protocol import ACTION_DIM, DEFAULT_POLICY_ACT, POLICY_ACTS, Observation, check_count
 
 _ACT_STREAM = 0x5A17  # offsets the execution generator's seed from the candidates' (same episode seed)
 
@@ -48,7 +48,7 @@ class BCPolicy:
     """
 
     def __init__(self, net: BCNet, features: BCFeatures, *, path: str = "policy", seed: int = 0, config: Mapping[str, Any] | None = None,
-                 act: str = "mode") -> None:
+                 act: str = DEFAULT_POLICY_ACT) -> None:
         if act not in POLICY_ACTS:
             raise unknown_choice("policy act", act, POLICY_ACTS)
         self.act = act
@@ -151,7 +151,7 @@ class BCPolicy:
         return self.sample_plans(obs, n)[:, 0]
 
 
-def load_policy(path: str, *, seed: int = 0, act: str = "mode") -> BCPolicy:
+def load_policy(path: str, *, seed: int = 0, act: str = DEFAULT_POLICY_ACT) -> BCPolicy:
     """Load a directory written by `train_policy` (refused in one line if missing, corrupt or foreign),
     acting as `act` says (see the module docstring)."""
     net, features, config = read_artifact(str(path))
