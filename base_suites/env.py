@@ -14,7 +14,9 @@ draw the layout from the episode seed, so the same seed gives the same scene in 
 The fixtures' poses are deliberately not in the state. Measured on libero_goal (50 scripted demos per
 task): with them, the BC policy reads their per-reset jitter (up to 2 cm per axis) as an episode
 identifier and overfits (goal/1 success 85-88% -> 33-60% over two training seeds), and an elegance
-critic ranks held-out alternatives no better (advantage AUROC 0.68 against 0.70 without).
+critic ranks held-out alternatives no better (advantage AUROC 0.68 against 0.70 without). With 100
+demos per task, JITI with critics that also see the fixtures' poses scores -1.0 ESR on libero_goal's
+validation starts against +4.2 with state-only critics (benchmarks/RESULTS.md, session 38).
 """
 from __future__ import annotations
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from critics import REWARDS
 from elegant.cli import parse_indices
 from elegant.jiti import TRIGGERS, WARMUPS
 from elegant.pipeline import add_chain_arguments, chain_config, run_chain
@@ -53,7 +54,7 @@ def main() -> None:
     parser.add_argument("--critic-steps", type=int, default=20000)
     parser.add_argument("--critic-gamma", type=float, default=0.9)
     parser.add_argument("--critic-cql-weight", type=float, default=0.2)
-    parser.add_argument("--critic-reward", default="segment", help="step or segment (see critics.load_transitions)")
+    parser.add_argument("--critic-reward", choices=REWARDS, default="segment", help="the critic's reward (see critics.load_transitions)")
     parser.add_argument("--trust-radius", type=float, default=0.3)
     parser.add_argument("--threshold", type=float, default=2.0)
     parser.add_argument("--threshold-mode", choices=("absolute", "std"), default="std")
