@@ -16,7 +16,8 @@ task): with them, the BC policy reads their per-reset jitter (up to 2 cm per axi
 identifier and overfits (goal/1 success 85-88% -> 33-60% over two training seeds), and an elegance
 critic ranks held-out alternatives no better (advantage AUROC 0.68 against 0.70 without). With 100
 demos per task, JITI with critics that also see the fixtures' poses scores -1.0 ESR on libero_goal's
-validation starts against +4.2 with state-only critics (benchmarks/RESULTS.md, session 38).
+validation starts against +4.2 with state-only critics, and a policy that sees them is no stronger held
+out (63.0 / 54.8 success / ESR against 63.8 / 52.0; benchmarks/RESULTS.md, session 38).
 """
 from __future__ import annotations
 
