@@ -1,5 +1,5 @@
 """Episode collection in the real env, written as LIBERO-layout HDF5: scripted-expert demonstrations here,
-policy rollouts (`elegant.rollouts`) through the same `collect_episodes`.
+policy rollouts (`elegant.evaluation.rollouts`) through the same `collect_episodes`.
 
 A demo collection's episode i of a task starts from shipped init state i (mod 50), and its quality
 knobs come from (seed, task, i), so a collection interrupted and resumed produces exactly the file an
@@ -19,10 +19,10 @@ import numpy as np
 from annotations.dataset import Demo, DemoWriter
 from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
-from base_suites.atomic import changed_fields
-from base_suites.errors import UserInputError
-from base_suites.parallel import check_picklable, check_workers, in_order, run_jobs
-from base_suites.seeds import derive_seed
+from base_suites.runtime.io import changed_fields
+from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.jobs import check_picklable, check_workers, in_order, run_jobs
+from base_suites.runtime.seeds import derive_seed
 
 
 DEMO_HORIZON_FACTOR = 2
@@ -88,7 +88,7 @@ def collect_episodes(
     renamed to `out` when all are there; `resume` continues an interrupted file, only with the same
     `settings` (what determines the episodes: stored in the file's `collection` attribute).
     `horizon(spec)` is each task's episode limit; `perturbation` (e.g. "init@nudge") is applied to every
-    env. `workers`: processes recording episodes side by side (`base_suites.parallel`; `make_source` must
+    env. `workers`: processes recording episodes side by side (`base_suites.runtime.jobs`; `make_source` must
     then be picklable); the file does not depend on it. Returns the path."""
     from tqdm import tqdm
 

@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 
 from annotations.format import CRITERIA, FORMAT_VERSION, demo_index, demo_name, task_key
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 
 _JSON_ATTRS = ("knobs", "knob_events", "perturbation", "violated", "fixture_layout", "rollout", "explored_steps")
 

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from annotations.format import task_key
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 
 
 class TaskFeatureEncoder:

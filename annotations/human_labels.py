@@ -24,7 +24,7 @@ import numpy as np
 
 from annotations.dataset import DemoFile
 from annotations.format import CRITERIA
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from itc import EpisodeVerdict, window_bounds
 
 HEADER = ("demo", "start_frame", "end_frame", "criterion", "label")

@@ -28,7 +28,7 @@ from annotations.dataset import Demo, DemoFile, DemoWriter
 from annotations.format import ANNOTATION_SCHEMA_VERSION, CRITERIA
 from annotations.human_labels import apply_human_labels, read_human_labels
 from base_suites import LiberoEnv, UserInputError, make_env, make_perturbation
-from base_suites.parallel import check_workers, in_order, run_jobs
+from base_suites.runtime.jobs import check_workers, in_order, run_jobs
 from itc import EpisodeVerdict, ITCMonitor, ITCParams, derive_spec
 
 
@@ -185,7 +185,7 @@ def annotate_file(
     workers: int = 1,
 ) -> dict[str, Any]:
     """Write an ITC-annotated copy of a demo file; returns a summary (rates of success, elegance, violations).
-    `workers`: processes replaying demos side by side (`base_suites.parallel`); the file does not depend on it."""
+    `workers`: processes replaying demos side by side (`base_suites.runtime.jobs`); the file does not depend on it."""
     params = params or ITCParams()
     check_workers(workers)
     if not 0.0 < gamma <= 1.0:

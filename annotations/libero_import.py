@@ -14,7 +14,7 @@ import numpy as np
 
 from annotations.dataset import Demo, DemoWriter, read_attrs
 from base_suites import get_task, list_tasks, make_env
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from base_suites.suites import MAIN_SUITES, TaskSpec
 
 

@@ -29,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 from base_suites._libero import libero_modules
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
 from base_suites.sim_view import SimView
 from base_suites.suites import TaskSpec, get_task

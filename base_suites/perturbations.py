@@ -16,7 +16,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.suites import PRO_SUITES, TaskSpec, base_suite_of, get_task
 
 FLOOR_STYLES = ("dark", "rustic", "light-gray", "white-marble", "wood-plank", "brown-ceramic", "gray-ceramic", "tile_grigia_caldera")

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from base_suites._libero import libero_modules, quietly
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError, unknown_choice
 
 MAIN_SUITES = ("libero_spatial", "libero_object", "libero_goal", "libero_10", "libero_90")
 # LIBERO-PRO rewrites of the four 10-task suites: paraphrased language, changed object appearance,

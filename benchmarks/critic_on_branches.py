@@ -15,8 +15,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from base_suites.atomic import read_json_file
-from elegant.headroom import rescore_headroom
+from base_suites.runtime.io import read_json_file
+from headroom import rescore_headroom
 
 
 def main() -> None:

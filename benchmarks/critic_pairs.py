@@ -2,7 +2,7 @@
 
 Rolls the scripted expert clean and with each knob on, from each init state, branches the two where the
 knob first changes an action, and scores each side's next WINDOW steps by their mean Q
-(`critics.continuation_pairs`, `critics.pair_preference`). Target (issue 5): the clean side scores
+(`continuation_pairs.py`). Target (issue 5): the clean side scores
 higher in >= 80% of pairs. Prints a per-knob table, then one JSON object on its last line.
 
     python benchmarks/critic_pairs.py CRITIC_DIR --suite libero_object --task 0 [--knobs drop,tilt,misplace,collide]
@@ -14,7 +14,8 @@ import argparse
 import json
 import time
 
-from critics import continuation_pairs, load, pair_preference
+from continuation_pairs import continuation_pairs, pair_preference
+from critics import load
 
 TARGET = 0.8
 

@@ -20,8 +20,9 @@ import json
 
 from critics import REWARDS
 from elegant.cli import parse_indices
-from elegant.jiti import TRIGGERS, WARMUPS
-from elegant.pipeline import add_chain_arguments, chain_config, run_chain
+from elegant.intervention.jiti import TRIGGERS, WARMUPS
+from chain_arguments import add_chain_arguments, chain_config
+from elegant.pipeline import run_chain
 
 TARGETS = {"base_success": 0.70, "esr_gain": 0.15, "max_success_drop": 0.02, "max_intervention_ratio": 0.40}
 

@@ -1,6 +1,6 @@
 """How much can a one-step intervention do for this policy, and how much of it does the critic find?
 
-Branches evaluation episodes in the simulator (`elegant.headroom`): at every EVERY-th step, each of N
+Branches evaluation episodes in the simulator (`benchmarks/headroom.py`): at every EVERY-th step, each of N
 candidates from the base policy is executed once and the base policy finishes the episode. Per episode
 it prints one line per decision point, one character per candidate (candidate 0 = the base action):
 E elegant success, . not, with the critic's choice marked by brackets; then the summary (headroom,
@@ -18,11 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from base_suites.atomic import atomic_write_json
+from base_suites.runtime.io import atomic_write_json
 from elegant.cli import parse_indices
-from elegant.headroom import intervention_headroom
-from elegant.jiti import choose_candidate
-from elegant.report import plot_headroom
+from headroom import intervention_headroom, plot_headroom
+from elegant.intervention.jiti import choose_candidate
 
 
 def _row(point: dict, trust_radius: float | None) -> str:

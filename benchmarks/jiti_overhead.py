@@ -20,7 +20,7 @@ import torch
 
 from annotations import TaskFeatureEncoder, task_key
 from base_suites import make_env
-from elegant.jiti import JITI
+from elegant.intervention.jiti import JITI
 
 TARGET = 0.05
 

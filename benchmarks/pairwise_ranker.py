@@ -23,8 +23,8 @@ import numpy as np
 import torch
 
 from annotations import DemoFile
-from elegant.branch_ranking import branch_ranking, single_explored_step
-from elegant.evaluation import open_policy
+from elegant.diagnostics.branch_ranking import branch_ranking, single_explored_step
+from elegant.evaluation.runner import open_policy
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import chunk_of
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from elegant.pipeline import add_chain_arguments, chain_config, run_chain
+from chain_arguments import add_chain_arguments, chain_config
+from elegant.pipeline import run_chain
 
 TARGETS = {"suite_success": 0.70, "esr_gap": 0.10}
 

@@ -21,8 +21,8 @@ import torch
 from threadpoolctl import ThreadpoolController
 
 from annotations import TaskFeatureEncoder
-from base_suites.atomic import atomic_write, atomic_write_json, library_versions, read_artifact_config
-from base_suites.errors import UserInputError
+from base_suites.runtime.io import atomic_write, atomic_write_json, library_versions, read_artifact_config
+from base_suites.runtime.errors import UserInputError
 from critics.networks import TwinQNetwork
 from critics.normalization import Normalization, clip_normalised_
 
@@ -32,7 +32,7 @@ CONFIG_FILE = "critic.json"
 
 
 def atomic_torch_save(path: str, obj: Any) -> None:
-    """torch.save through `base_suites.atomic`: a kill mid-write leaves the previous file intact."""
+    """torch.save through `base_suites.runtime.io`: a kill mid-write leaves the previous file intact."""
     buffer = io.BytesIO()
     torch.save(obj, buffer)
     atomic_write(path, buffer.getvalue())

@@ -55,7 +55,7 @@ from torchrl.data.postprocs import MultiStep
 from torchrl.objectives.value.functional import reward2go
 
 from annotations import CRITERIA, DemoFile, TaskFeatureEncoder
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from critics.normalization import Normalization
 
 REWARDS = ("step", "segment", "elegant")  # the violation penalty per step or per window; or an elegant success

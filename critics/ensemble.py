@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from critics.artifact import load
 
 

@@ -27,8 +27,8 @@ from tensordict import TensorDictBase
 from tqdm.auto import tqdm
 from torchrl.objectives import SoftUpdate
 
-from base_suites.atomic import atomic_write, changed_fields, library_versions
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.io import atomic_write, changed_fields, library_versions
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from critics.artifact import atomic_torch_save, save_critic
 from critics.data import REWARDS, TransitionData, load_transitions, make_replay_buffer
 from critics.loss import BACKUPS, VALUE_LOSSES, CalQLLoss

@@ -56,7 +56,7 @@ def _tasks(args: argparse.Namespace) -> None:
 
 
 def _task_list(text: str | None) -> list[int] | None:
-    from base_suites.errors import UserInputError
+    from base_suites.runtime.errors import UserInputError
 
     if text is None:
         return None
@@ -68,7 +68,7 @@ def _task_list(text: str | None) -> list[int] | None:
 
 def parse_indices(text: str | None, flag: str) -> list[int] | None:
     """'0-24' or '0,3,5-9' -> the listed indices (None stays None)."""
-    from base_suites.errors import UserInputError
+    from base_suites.runtime.errors import UserInputError
 
     if text is None:
         return None
@@ -86,7 +86,7 @@ def parse_indices(text: str | None, flag: str) -> list[int] | None:
 
 
 def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
-    from base_suites.parallel import add_workers_argument  # light: no simulator, no torch
+    from base_suites.runtime.jobs import add_workers_argument  # light: no simulator, no torch
 
     add_workers_argument(p, default)
 
@@ -138,7 +138,7 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
 
 @command("rollouts", "record a policy's episodes (optionally exploring) as a demo-layout HDF5 for annotation and critic training")(_rollouts_args)
 def _rollouts(args: argparse.Namespace) -> dict:
-    from elegant.rollouts import collect_rollouts
+    from elegant.evaluation.rollouts import collect_rollouts
 
     return collect_rollouts(args.suite, _task_list(args.tasks), args.policy, args.episodes, args.out, explore=args.explore,
                             explore_at=parse_indices(args.explore_at, "--explore-at"), trust_radius=args.trust_radius,
@@ -279,9 +279,9 @@ def _rank_check_args(p: argparse.ArgumentParser) -> None:
 
 @command("rank-check", "how well a critic ranks a policy's explored alternatives against its own plan, by their annotated outcome")(_rank_check_args)
 def _rank_check(args: argparse.Namespace) -> dict:
-    from base_suites.atomic import atomic_write_json
-    from elegant.branch_ranking import branch_ranking
-    from elegant.evaluation import open_critic, open_policy
+    from base_suites.runtime.io import atomic_write_json
+    from elegant.diagnostics.branch_ranking import branch_ranking
+    from elegant.evaluation.runner import open_critic, open_policy
     from elegant.policies import as_policy
 
     result = branch_ranking(args.rollouts, as_policy(open_policy(args.policy), seed=0), open_critic(args.critic), progress=True)
@@ -291,7 +291,7 @@ def _rank_check(args: argparse.Namespace) -> dict:
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:
-    from elegant.jiti import MODES, THRESHOLD_MODES, TRIGGERS, WARMUPS  # light: no torch
+    from elegant.intervention.jiti import MODES, THRESHOLD_MODES, TRIGGERS, WARMUPS  # light: no torch
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
@@ -328,7 +328,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
 def _eval(args: argparse.Namespace) -> dict:
-    from elegant.evaluation import JITI_SETTINGS, evaluate
+    from elegant.evaluation.runner import JITI_SETTINGS, evaluate
 
     jiti_kwargs = {k: getattr(args, k) for k in JITI_SETTINGS if getattr(args, k, None) is not None}
     summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
@@ -344,13 +344,13 @@ def _gate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--always", help="an `always` run on the same starts: a task may then re-rank every decision where that did best")
     p.add_argument("--budget", type=float,
                    help="with --always: the suite's interventions per episode at most this share of always's "
-                        "(default: elegant.gate.INTERVENTION_BUDGET, 0.4)")
+                        "(default: elegant.intervention.gate.INTERVENTION_BUDGET, 0.4)")
     p.add_argument("--out", required=True, help="gate file (JSON) for elegant eval --gate")
 
 
 @command("gate", "choose per task base, JITI (or always) by what, on validation starts, made more episodes elegant than it spoiled")(_gate_args)
 def _gate(args: argparse.Namespace) -> dict:
-    from elegant.gate import write_gate
+    from elegant.intervention.gate import write_gate
 
     budget = {} if args.budget is None else {"budget": args.budget}
     return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, **budget)
@@ -373,7 +373,7 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
 
 @command("lifelong", "LIBERO's lifelong protocol (sequential fine-tuning): FWT, NBT, AUC from success and elegant success")(_lifelong_args)
 def _lifelong(args: argparse.Namespace) -> dict:
-    from elegant.lifelong import run_lifelong
+    from elegant.evaluation.lifelong import run_lifelong
 
     result = run_lifelong(args.suite, _task_list(args.tasks), args.data, args.out, epochs=args.epochs, eval_every=args.eval_every,
                           episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, resume=args.resume, workers=args.workers,
@@ -388,7 +388,7 @@ def _report_args(p: argparse.ArgumentParser) -> None:
 
 @command("report", "compare evaluation runs side by side")(_report_args)
 def _report(args: argparse.Namespace) -> None:
-    from elegant.report import compare_runs
+    from elegant.reporting.report import compare_runs
 
     result = compare_runs(args.runs, args.out)
     print(result["markdown"])
@@ -405,7 +405,7 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy-epochs", type=int, default=QUICKSTART.policy_epochs)
     p.add_argument("--episodes", type=int, default=QUICKSTART.episodes)
     p.add_argument("--seed", type=int, default=QUICKSTART.seed)
-    from base_suites.parallel import available_cores
+    from base_suites.runtime.jobs import available_cores
 
     _workers_arg(p, default=available_cores())
 
@@ -432,7 +432,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from base_suites.errors import UserInputError
+    from base_suites.runtime.errors import UserInputError
 
     args = build_parser().parse_args(argv)
     try:

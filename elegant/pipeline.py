@@ -9,16 +9,14 @@ directory refuses to continue under other settings.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from base_suites.atomic import atomic_write, changed_fields, read_json_file
-from base_suites.errors import UserInputError, unknown_choice
-from base_suites.parallel import add_workers_argument
-from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, add_policy_act_argument
+from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
+from base_suites.runtime.errors import UserInputError, unknown_choice
+from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS
 
 MODES = ("base", "always", "jiti")
 
@@ -41,7 +39,7 @@ class ChainConfig:
     success fell to 0%. `threshold` in units of the running std of Q (2.0):
     on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
     suites' horizons. `chunk`: actions per decision of the BC policy (executed open-loop) and of the
-    critic that judges them; JITI then chooses among whole chunks (see `elegant.jiti`). `window`: JITI's
+    critic that judges them; JITI then chooses among whole chunks (see `elegant.intervention.jiti`). `window`: JITI's
     window in decisions (None: JITI's default); `trigger` JITI's critical-moment test (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
     `policy_successful_only`: the policy clones only the demos that succeeded (the critic still sees all).
     `policy_obs_noise`: std of the Gaussian noise on the policy's normalised input states in training.
@@ -73,7 +71,7 @@ class ChainConfig:
     rollouts for the critic keep the mode, so one critic serves both.
     `jiti_gate`: before the evaluation, the base policy and JITI each run `episodes` per task from the
     rollouts' starts (validation, never the evaluated ones), and JITI is then evaluated only on the tasks
-    where it made more episodes elegant than it spoiled there (`elegant.gate`); needs `critic_rollouts`.
+    where it made more episodes elegant than it spoiled there (`elegant.intervention.gate`); needs `critic_rollouts`.
     With "always" among `modes` it is validated too, and the gate may run a task as `always` where that
     did better still, within 40% of `always`'s interventions over the suite.
     """
@@ -137,7 +135,7 @@ class ChainConfig:
             raise UserInputError("chain suites: give at least one suite")
         if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
             raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
-        from elegant.jiti import check_candidates, check_trigger_and_warmup
+        from elegant.intervention.jiti import check_candidates, check_trigger_and_warmup
 
         check_trigger_and_warmup(self.trigger, self.warmup, jiti_mode="jiti" in self.modes, owner="chain")
         if self.candidates is not None:
@@ -168,34 +166,6 @@ class ChainConfig:
         return {k: v for k, v in settings.items() if v is not None}
 
 
-def add_chain_arguments(parser: argparse.ArgumentParser) -> None:
-    """The command-line options every benchmark built on the chain shares (data, policy, evaluation)."""
-    parser.add_argument("--out", required=True, help="chain directory (resumable)")
-    parser.add_argument("--suites", default="libero_object,libero_goal")
-    parser.add_argument("--tasks", help="task indices for every suite (default: all)")
-    parser.add_argument("--demos", type=int, default=50, help="mixed-quality demos per task")
-    parser.add_argument("--episodes", type=int, default=50, help="evaluation episodes per task and mode")
-    parser.add_argument("--policy-epochs", type=int, default=50)
-    parser.add_argument("--policy-modes", type=int, help="components of the BC policy's GMM head (default: train-policy's)")
-    parser.add_argument("--successful-only", action="store_true", help="the policy clones only the demos that succeeded")
-    parser.add_argument("--obs-noise", type=float, default=0.0, help="std of the noise on the policy's normalised input states in training")
-    parser.add_argument("--chunk", type=int, default=1, help="actions per decision of the policy (and of the critic)")
-    parser.add_argument("--max-steps", type=int, help="episode horizon (default: the suites')")
-    parser.add_argument("--seed", type=int, default=0)
-    add_policy_act_argument(parser)
-    add_workers_argument(parser)
-
-
-def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
-    """A `ChainConfig` from the options of `add_chain_arguments`, with `fields` (modes, critic and JITI settings) added."""
-    return ChainConfig(
-        suites=tuple(args.suites.split(",")), tasks=tuple(int(t) for t in args.tasks.split(",")) if args.tasks else None,
-        demos=args.demos, policy_epochs=args.policy_epochs, policy_modes=args.policy_modes,
-        policy_successful_only=args.successful_only, policy_obs_noise=args.obs_noise, episodes=args.episodes, chunk=args.chunk,
-        max_steps=args.max_steps, seed=args.seed, policy_act=args.policy_act, **fields,
-    )
-
-
 # JITI's recipe (benchmarks/jiti_effect.py, README "Where JITI stands") on one task at small sizes, so the
 # first command shows the method as it is evaluated: a chunk-8 BC policy on the successful demos with
 # observation noise, branch rollouts of that policy from the first 25 init states, one outcome critic
@@ -204,7 +174,7 @@ def chain_config(args: argparse.Namespace, **fields: Any) -> ChainConfig:
 # other 25 starts. 100 demos and 300 epochs because the base policy must be worth steering: from 50
 # demos and 150 epochs the one-task policy succeeded in 8% of episodes (28% with chunks of 4), from 100
 # and 300 in 76%. About 11 minutes on 2 cores. Branch rollouts cycle through the starts first, then the
-# branch points (`elegant.rollouts.branch_step`): 50 rollouts from 25 starts branch at decisions 8 and 16,
+# branch points (`elegant.evaluation.rollouts.branch_step`): 50 rollouts from 25 starts branch at decisions 8 and 16,
 # the first two points of the benchmark's list (whose 100 rollouts per task use its first four).
 QUICKSTART = ChainConfig(
     demos=100, chunk=8, policy_epochs=300, policy_successful_only=True, policy_obs_noise=0.1,
@@ -266,11 +236,11 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     from annotations import annotate_file
     from annotations.collect import collect_demos
     from critics import train_critic
-    from elegant.evaluation import evaluate
-    from elegant.gate import write_gate
+    from elegant.evaluation.runner import evaluate
+    from elegant.intervention.gate import write_gate
     from elegant.policies import train_policy
-    from elegant.report import compare_runs
-    from elegant.rollouts import collect_rollouts
+    from elegant.reporting.report import compare_runs
+    from elegant.evaluation.rollouts import collect_rollouts
 
     cfg = config
     cfg.validate()

@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from itc.params import ITCParams
 from itc.spec import SURFACES, ConstraintSpec, Scene
 

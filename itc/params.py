@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 
 
 @dataclass(frozen=True)

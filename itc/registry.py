@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from base_suites.errors import unknown_choice
+from base_suites.runtime.errors import unknown_choice
 from itc.alignment import Alignment
 from itc.base import Constraint
 from itc.collision import CollisionFree

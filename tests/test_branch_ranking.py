@@ -3,8 +3,8 @@ import h5py
 import numpy as np
 import pytest
 
-from base_suites.errors import UserInputError
-from elegant.branch_ranking import branch_ranking
+from base_suites.runtime.errors import UserInputError
+from elegant.diagnostics.branch_ranking import branch_ranking
 from test_critic_data import write_annotated
 
 EXPLORED_AT = 10

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from annotations import CRITERIA, SEGMENT_LENGTH, Demo, DemoWriter
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from critics import Normalization, load_transitions, make_replay_buffer
 from critics.data import NO_FLOOR
 from critics.normalization import MAX_ABS_Z, MIN_STD

@@ -5,8 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from base_suites.errors import UserInputError
-from critics import Continuation, Pair, continuation_pairs, pair_preference
+from base_suites.runtime.errors import UserInputError
+from conftest import load_benchmark
+
+_pairs = load_benchmark("continuation_pairs")
+Continuation, Pair, continuation_pairs, pair_preference = _pairs.Continuation, _pairs.Pair, _pairs.continuation_pairs, _pairs.pair_preference
 
 STATE_SIZE = 3
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from critics import auroc, evaluate_critic, load, train_critic
 from test_critic_data import task_layout, write_annotated
 
@@ -203,7 +203,7 @@ def test_bootstrap_members_load_as_an_ensemble_that_scores_with_each_of_them(ann
     """Members trained on bootstrap resamples record their resample and differ; comma-separated
     directories open as one `CriticEnsemble` whose `q` is the members' mean; a resume keeps the resample."""
     from critics import CriticEnsemble
-    from elegant.evaluation import open_critic
+    from elegant.evaluation.runner import open_critic
 
     members = [str(tmp_path / f"m{b}") for b in (1, 2)]
     for b, out in zip((1, 2), members):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from base_suites import UserInputError
-from elegant.evaluation import episode_start, evaluate
+from elegant.evaluation.runner import episode_start, evaluate
 
 pytestmark = pytest.mark.sim
 SUITE, TASK, STEPS = "libero_object", 0, 20
@@ -192,12 +192,12 @@ def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(run
 def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_path):
     """Each JITI setting has its own `elegant eval` flag and reaches `evaluate` under its own name; a flag
     left out is not passed, so the run keeps JITI's default."""
-    import elegant.evaluation
+    import elegant.evaluation.runner
     from elegant.cli import main
-    from elegant.evaluation import JITI_SETTINGS
+    from elegant.evaluation.runner import JITI_SETTINGS
 
     calls = []
-    monkeypatch.setattr(elegant.evaluation, "evaluate", lambda *args, **kwargs: calls.append(kwargs) or {})
+    monkeypatch.setattr(elegant.evaluation.runner, "evaluate", lambda *args, **kwargs: calls.append(kwargs) or {})
     flags = {"window": ("--window", "7", 7), "threshold": ("--threshold", "1.5", 1.5), "threshold_mode": ("--threshold-mode", "std", "std"),
              "n_candidates": ("--candidates", "8", 8), "noise_scale": ("--noise-scale", "0.2", 0.2),
              "trust_radius": ("--trust-radius", "0.4", 0.4), "random_rate": ("--random-rate", "0.3", 0.3),
@@ -216,7 +216,7 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
 def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tmp_path):
     """`elegant gate` pairs base, JITI and `always` runs on validation starts; `evaluate(gate=...)` then runs
     a task exactly as the chosen mode's own run does (base, jiti or always), and refuses the validation starts."""
-    from elegant.gate import write_gate
+    from elegant.intervention.gate import write_gate
 
     run(tmp_path / "val_base", mode="base", init_states=[0, 1])
     run(tmp_path / "val_jiti", init_states=[0, 1])

@@ -4,7 +4,7 @@ import json
 import pytest
 
 from base_suites import UserInputError
-from elegant.gate import read_gate, task_gate, write_gate
+from elegant.intervention.gate import read_gate, task_gate, write_gate
 
 
 AGENT = {"policy": "/runs/policy", "critic": "/runs/critic", "jiti": {"window": 4, "warmup": "steer"}}

@@ -4,7 +4,10 @@ import numpy as np
 import pytest
 
 from base_suites import make_env
-from elegant.headroom import _rollout, branch_episode, summarize_headroom
+from conftest import load_benchmark
+
+headroom = load_benchmark("headroom")
+_rollout, branch_episode, summarize_headroom = headroom._rollout, headroom.branch_episode, headroom.summarize_headroom
 from elegant.policies.adapters import as_policy
 from itc import ITCMonitor
 
@@ -70,7 +73,7 @@ def test_a_branch_replays_the_base_episode_exactly_up_to_the_changed_action():
 
 def test_headroom_plot_is_written_and_an_empty_result_is_refused(tmp_path):
     from base_suites import UserInputError
-    from elegant.report import plot_headroom
+    plot_headroom = headroom.plot_headroom
 
     result = {"episodes": [{"init_index": 3, "base_elegant": False, "points": [
         _point([0.0, 1.0, 5.0], [0.0, 0.1, 0.9], [False, False, True]),
@@ -123,7 +126,7 @@ class ContraryChunkCritic(ChunkHeightCritic):
 @pytest.mark.sim
 def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
     from base_suites import UserInputError
-    from elegant.headroom import intervention_headroom
+    intervention_headroom = headroom.intervention_headroom
 
     env = make_env("libero_object", 0, seed=0, max_steps=12)
     monitor, policy = ITCMonitor(env), ChunkedPlunge()
@@ -145,7 +148,7 @@ def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
 def _another_critic_is_judged_on_the_stored_branches(episode):
     """rescore_headroom recomputes Q from each point's stored state and candidates; outcomes stay."""
     from base_suites import UserInputError
-    from elegant.headroom import rescore_headroom
+    rescore_headroom = headroom.rescore_headroom
 
     result = {"suite": "libero_object", "task": 0, "chunk": 2, "episodes": [episode]}
     rescored = rescore_headroom(result, ContraryChunkCritic(), trust_radius=None)

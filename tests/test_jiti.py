@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from base_suites import UserInputError
-from elegant.jiti import JITI, plan_distance
+from elegant.intervention.jiti import JITI, plan_distance
 
 META = {"suite": "libero_object", "task_index": 0, "state_layout": [["t", 1]]}
 BASE = np.array([0.0, 0.1, -0.2, 0.0, 0.0, 0.0, -1.0])

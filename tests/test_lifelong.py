@@ -13,10 +13,10 @@ import pytest
 import torch
 
 from annotations.collect import collect_demos
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from elegant.cli import main
-from elegant.lifelong import run_lifelong
-from elegant.metrics import lifelong_metrics
+from elegant.evaluation.lifelong import run_lifelong
+from elegant.evaluation.metrics import lifelong_metrics
 from elegant.policies.bc_train import snapshot_dir
 
 pytestmark = pytest.mark.sim
@@ -134,10 +134,10 @@ def test_cli_refuses_in_one_line(demos, tmp_path, capsys):
 
 
 def test_cli_hands_the_worker_count_to_the_evaluations(demos, tmp_path, monkeypatch):
-    import elegant.lifelong
+    import elegant.evaluation.lifelong
 
     seen = {}
-    monkeypatch.setattr(elegant.lifelong, "run_lifelong", lambda *a, **kw: seen.update(kw) or {"metrics": {}, "metrics_elegant": {}})
+    monkeypatch.setattr(elegant.evaluation.lifelong, "run_lifelong", lambda *a, **kw: seen.update(kw) or {"metrics": {}, "metrics_elegant": {}})
     assert main(["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "w"), "--workers", "2"]) == 0
     assert seen["workers"] == 2
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from base_suites import UserInputError
-from elegant.metrics import (
+from elegant.evaluation.metrics import (
     clamp_learning_curves,
     decision_overhead,
     elegant_success_rate,

@@ -1,4 +1,4 @@
-"""Episodes on worker processes (`base_suites.parallel`): the runner's contract with toy jobs, then the real
+"""Episodes on worker processes (`base_suites.runtime.jobs`): the runner's contract with toy jobs, then the real
 collectors, whose files must not depend on the number of workers."""
 import os
 import time
@@ -11,8 +11,8 @@ import pytest
 from annotations import annotate_file
 from annotations.collect import collect_demos
 from base_suites import UserInputError
-from base_suites.parallel import check_workers, in_order, run_jobs
-from elegant.episode_log import run_records
+from base_suites.runtime.jobs import check_workers, in_order, run_jobs
+from elegant.evaluation.episode_log import run_records
 
 
 class Doubler:

@@ -7,8 +7,8 @@ from dataclasses import replace
 import pytest
 
 from base_suites import UserInputError
-from elegant.branch_ranking import branch_ranking
-from elegant.evaluation import open_critic, open_policy
+from elegant.diagnostics.branch_ranking import branch_ranking
+from elegant.evaluation.runner import open_critic, open_policy
 from elegant.pipeline import ChainConfig, run_chain
 from elegant.policies import as_policy
 
@@ -170,7 +170,7 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
 def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(monkeypatch, tmp_path):
     """`elegant quickstart` hands the recipe (chunked policy, branch rollouts, outcome critic, steered JITI)
     to the chain with the flags it was given, on one worker per core unless told otherwise."""
-    from base_suites.parallel import available_cores
+    from base_suites.runtime.jobs import available_cores
     from elegant import cli, pipeline
 
     calls = []

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from annotations import Demo, DemoWriter
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from elegant.policies import BCPolicy, Policy, as_policy, load_policy, train_policy
 from elegant.policies.bc_data import load_demos
 
@@ -415,7 +415,7 @@ def test_successful_only_clones_the_successes_and_a_resume_must_agree(tmp_path):
 
 def test_evaluation_agents_act_as_asked_in_every_worker(policy_dir):
     """`build_agent` is what each evaluation worker calls: the act reaches the policy it loads."""
-    from elegant.evaluation import build_agent
+    from elegant.evaluation.runner import build_agent
 
     assert build_agent(policy_dir, None, "base", 0, {}).policy.act == "mode"
     assert build_agent(policy_dir, None, "base", 0, {}, "sample").policy.act == "sample"

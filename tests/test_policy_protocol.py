@@ -9,7 +9,7 @@ from tensordict.nn import (
 )
 from torch import nn
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from elegant.policies import (
     TORCHRL_LIBERO_STATE, CallablePolicy, GaussianCandidates, LayoutSlice, LeRobotPolicy, Policy, TorchRLPolicy, as_policy,
     lerobot_libero_state,

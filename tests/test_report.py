@@ -4,8 +4,8 @@ import json
 import pytest
 
 from base_suites import UserInputError
-from elegant.metrics import summarize
-from elegant.report import atomic_write, compare_runs, perturbation_axis, write_run_report
+from elegant.evaluation.metrics import summarize
+from elegant.reporting.report import atomic_write, compare_runs, perturbation_axis, write_run_report
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

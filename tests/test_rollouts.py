@@ -6,8 +6,8 @@ import pytest
 
 from annotations import CRITERIA, DemoFile, annotate_file
 from base_suites import UserInputError, make_env
-from elegant.evaluation import episode_start
-from elegant.rollouts import branch_points_reached, branch_step, collect_rollouts
+from elegant.evaluation.runner import episode_start
+from elegant.evaluation.rollouts import branch_points_reached, branch_step, collect_rollouts
 from conftest import interrupted_at_second_episode
 from itc import ITCMonitor
 

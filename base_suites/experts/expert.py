@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from base_suites.env import LiberoEnv
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.experts import articulated, skills
 from base_suites.experts.control import OPEN
 from base_suites.experts.geometry import handle_pinch

@@ -5,7 +5,7 @@ stays instant for commands that never touch a network.
 """
 from __future__ import annotations
 
-from base_suites.lazy import lazy_getattr
+from base_suites.runtime.lazy import lazy_getattr
 
 from elegant.policies.adapters import (
     TORCHRL_LIBERO_STATE, CallablePolicy, LayoutSlice, LeRobotPolicy, PolicyAdapter, StateFn, TorchRLPolicy, as_policy,

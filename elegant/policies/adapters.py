@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, GaussianCandidates, Observation, Policy, as_action, check_count
 
 StateFn = Callable[[np.ndarray, Mapping[str, Any] | None], np.ndarray]

@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from base_suites.atomic import atomic_write, library_versions, read_artifact_config
+from base_suites.runtime.io import atomic_write, library_versions, read_artifact_config
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
 from elegant.policies.protocol import ACTION_DIM

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from annotations import DemoFile
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from elegant.policies.protocol import ACTION_DIM
 
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet, gmm_component_means, gmm_mode, gmm_sample

@@ -6,7 +6,7 @@ history. The network is initialised under its own seed inside a forked RNG, and 
 from that generator, so a resumed run replays exactly what the uninterrupted run would have done. A
 checkpoint is only resumed with the same data and hyper-parameters; anything else is refused.
 
-Sequential fine-tuning (the lifelong protocol, `elegant.lifelong`) needs three more things: training on
+Sequential fine-tuning (the lifelong protocol, `elegant.evaluation.lifelong`) needs three more things: training on
 some tasks of multi-task files (`tasks`), an input encoder fixed over more tasks than a stage trains on
 (`features`) or inherited from the previous network (`init_from`, which also brings its weights), and
 the network as of intermediate epochs (`snapshot_epochs`, published like the final policy, because the
@@ -27,8 +27,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from base_suites.atomic import atomic_write, changed_fields
-from base_suites.errors import UserInputError
+from base_suites.runtime.io import atomic_write, changed_fields
+from base_suites.runtime.errors import UserInputError
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures

@@ -14,7 +14,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 
 ACTION_DIM = 7
 ACTION_LOW = -1.0

@@ -18,7 +18,7 @@ Choices made here, each for a reason:
   of ESR on held-out starts, and steering the first 4 decisions as well gained 8.8 (9.2 with
   `trigger="none"`, the warm-up alone), more than `always`'s 6.4 at a quarter of its interventions
   (benchmarks/RESULTS.md, session 27). Running JITI only on the tasks a validation gate enables
-  (`elegant.gate`) raised the gain to 11.6 (session 28).
+  (`elegant.intervention.gate`) raised the gain to 11.6 (session 28).
 - The window receives the score of the action actually executed (q_t, or the chosen candidate's score
   after an intervention): the window tracks the value of the trajectory being followed, so after a
   successful correction the new level becomes the reference instead of triggering again.
@@ -80,7 +80,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from base_suites.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Observation, as_action, chunk_of
 

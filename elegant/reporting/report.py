@@ -19,27 +19,26 @@ from typing import Any
 import numpy as np
 
 from annotations.format import CRITERIA, SEGMENT_LENGTH
-from base_suites.atomic import atomic_write
-from base_suites.errors import UserInputError
+from base_suites.runtime.io import atomic_write
+from base_suites.runtime.errors import UserInputError
 from base_suites.perturbations import parse_perturbations
-from elegant.episode_log import EpisodeLog, run_records
-from elegant.jiti import choose_candidate, eligible_candidates
-from elegant.metrics import paired_comparison, robustness_metrics, summarize
+from elegant.evaluation.episode_log import EpisodeLog, run_records
+from elegant.evaluation.metrics import paired_comparison, robustness_metrics, summarize
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
 
 
-def _save(fig, path: Path) -> Path:
+def save_figure(fig, path: Path) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     atomic_write(path, buf.getvalue())
     return path
 
 
-def _pct(x: float) -> str:
+def percent(x: float) -> str:
     return "n/a" if x is None or np.isnan(x) else f"{100 * x:.1f}%"
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
     lines = ["| " + " | ".join(map(str, header)) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(map(str, row)) + " |" for row in rows]
     return "\n".join(lines)
@@ -63,7 +62,7 @@ def plot_bars(groups: Sequence[str], series: Mapping[str, Sequence[float]], titl
     ax.set_ylabel("rate")
     ax.set_title(title, fontsize=10)
     ax.legend(fontsize=8, loc="best")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _floats(values: Sequence[float | None]) -> np.ndarray:
@@ -94,53 +93,13 @@ def plot_q_trace(trace: Mapping[str, Any], path: Path) -> Path:
     ax.set_title(f"{trace['task']} episode {trace['episode']} ({trace['mode']}): success={trace['success']}, "
                  f"elegant={trace['elegant']}, violated: {violated} (shaded windows)", fontsize=9)
     ax.legend(fontsize=7, loc="best")
-    return _save(fig, path)
-
-
-_ELEGANT, _ELEGANT_FAR = (0.20, 0.65, 0.30), (0.70, 0.88, 0.72)
-_PLAIN, _PLAIN_FAR = (0.72, 0.72, 0.72), (0.93, 0.93, 0.93)
-
-
-def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: Path) -> Path:
-    """The intervention-headroom branches (`elegant.headroom`): one panel per start, one row per decision
-    point, its candidates ordered by the critic's Q (best on the left); green where executing the
-    candidate led to an elegant success, pale where it lies outside the trust radius; the base action
-    outlined, the critic's choice dotted. Shows at a glance whether rescuing candidates exist and where
-    the critic ranks them."""
-    from matplotlib.figure import Figure
-
-    episodes = [e for e in result["episodes"] if e["points"]]
-    if not episodes:
-        raise UserInputError("plot_headroom: no decision points to draw")
-    n_cand = len(episodes[0]["points"][0]["q"])
-    fig = Figure(figsize=(max(6.0, 3.0 * len(episodes)), 0.35 * max(len(e["points"]) for e in episodes) + 1.6))
-    for i, episode in enumerate(episodes):
-        ax = fig.add_subplot(1, len(episodes), i + 1)
-        image = np.zeros((len(episode["points"]), n_cand, 3))
-        for row, point in enumerate(episode["points"]):
-            q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
-            order = np.argsort(-q, kind="stable")
-            column = np.argsort(order)  # candidate k is drawn in column[k]
-            near = eligible_candidates(distance, trust_radius)
-            for col, k in enumerate(order):
-                image[row, col] = (_ELEGANT if near[k] else _ELEGANT_FAR) if point["elegant"][k] else (_PLAIN if near[k] else _PLAIN_FAR)
-            ax.scatter([column[0]], [row], marker="s", s=60, facecolors="none", edgecolors="black", lw=1)
-            ax.scatter([column[choose_candidate(q, distance, trust_radius)]], [row], marker="o", s=10, color="tab:red")
-        ax.imshow(image, aspect="auto", interpolation="nearest")
-        ax.set_yticks(range(len(episode["points"])), [str(p["step"]) for p in episode["points"]], fontsize=7)
-        ax.set_xticks([0, n_cand - 1], ["best Q", "worst Q"], fontsize=7)
-        ax.set_title(f"init {episode['init_index']}: base {'elegant' if episode['base_elegant'] else 'not elegant'}", fontsize=8)
-        if i == 0:
-            ax.set_ylabel("decision step")
-    fig.suptitle("candidates by critic rank: green = elegant success when executed (pale: outside trust radius); "
-                 "box = base action, dot = critic's choice", fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 # ---- one run ---------------------------------------------------------------------------------------
 
 def _with_interval(rate: float, interval: Sequence[float]) -> str:
-    return f"{_pct(rate)} [{_pct(interval[0])}, {_pct(interval[1])}]"
+    return f"{percent(rate)} [{percent(interval[0])}, {percent(interval[1])}]"
 
 
 def _summary_rows(s: Mapping[str, Any]) -> list[list[str]]:
@@ -149,15 +108,15 @@ def _summary_rows(s: Mapping[str, Any]) -> list[list[str]]:
         ["success rate [95% interval]", _with_interval(s["success_rate"], s["success_ci95"])],
         ["ESR (elegant success rate) [95% interval]", _with_interval(s["esr"], s["esr_ci95"])],
     ]
-    rows += [[f"violation rate: {c}", _pct(v)] for c, v in s["itc_violation_rate"].items()]
-    rows += [[f"succeeded, but violated: {c}", _pct(v)] for c, v in s["success_with_violation"].items()]
+    rows += [[f"violation rate: {c}", percent(v)] for c, v in s["itc_violation_rate"].items()]
+    rows += [[f"succeeded, but violated: {c}", percent(v)] for c, v in s["success_with_violation"].items()]
     rows += [
         ["interventions / episode", f"{s['interventions_per_episode']:.2f}"],
         ["overrides / episode (executed action != base)", f"{s['overrides_per_episode']:.2f}"],
         ["steps / episode", f"{s['steps_per_episode']:.1f}"],
         ["decision time / step", f"{1e3 * s['decision_time']:.3f} ms"],
         ["env step time / step", f"{1e3 * s['env_step_time']:.2f} ms"],
-        ["decision overhead", _pct(s["decision_overhead"])],
+        ["decision overhead", percent(s["decision_overhead"])],
     ]
     return rows
 
@@ -198,7 +157,7 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
         "",
         "## Overall",
         "",
-        _table(["metric", "value"], _summary_rows(summary)),
+        markdown_table(["metric", "value"], _summary_rows(summary)),
         "",
         "Violation rate: fraction of episodes with at least one violated 25-step window of the criterion; "
         "'succeeded, but violated': the fraction that reached the goal with such a window, which is where "
@@ -207,10 +166,10 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
         "",
         "## Per task",
         "",
-        _table(
+        markdown_table(
             ["task", "episodes", "success", "ESR", "interventions / ep", *CRITERIA],
-            [[t, b["episodes"], _pct(b["success_rate"]), _pct(b["esr"]), f"{b['interventions_per_episode']:.2f}",
-              *(_pct(b["itc_violation_rate"][c]) for c in CRITERIA)] for t, b in per_task.items()],
+            [[t, b["episodes"], percent(b["success_rate"]), percent(b["esr"]), f"{b['interventions_per_episode']:.2f}",
+              *(percent(b["itc_violation_rate"][c]) for c in CRITERIA)] for t, b in per_task.items()],
         ),
         "",
         "![success and ESR per task](success_esr.png)",
@@ -284,7 +243,7 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
 
     Returns {"runs": [{label, dir, config}], "markdown": str, "paired": [...], "robustness": {...}, "files":
     [...]}; "paired" compares every later run with the first on their shared starts
-    (`elegant.metrics.paired_comparison` of success and of elegant success). With
+    (`elegant.evaluation.metrics.paired_comparison` of success and of elegant success). With
     `out`, writes out/comparison.md and out/comparison.png (grouped bars of success and ESR per task);
     without it nothing is written.
     """
@@ -302,24 +261,24 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
 
     def cell(s: Mapping[str, Any], t: str) -> str:
         b = s["per_task"].get(t)
-        return "—" if b is None else f"{_pct(b['success_rate'])} / {_pct(b['esr'])}"
+        return "—" if b is None else f"{percent(b['success_rate'])} / {percent(b['esr'])}"
 
-    lines = ["# Run comparison", "", _table(["metric", *labels], rows), "", "## Success / ESR per task", "",
-             _table(["task", *labels], [[t, *(cell(s, t) for s in summaries)] for t in tasks])]
+    lines = ["# Run comparison", "", markdown_table(["metric", *labels], rows), "", "## Success / ESR per task", "",
+             markdown_table(["task", *labels], [[t, *(cell(s, t) for s in summaries)] for t in tasks])]
     paired = _paired_rows(labels, records)
     if paired:
         lines += ["", f"## Paired with {labels[0]}", "",
                   "Episodes of two runs with the same seed start alike; each cell counts the starts where only one "
                   "of the two runs succeeded (or succeeded elegantly), with McNemar's exact p-value.", "",
-                  _table(["run", "episode pairs", "success", "ESR"],
+                  markdown_table(["run", "episode pairs", "success", "ESR"],
                          [[p["run"], p["success"]["pairs"], _paired_cell(p["success"]), _paired_cell(p["elegant"])] for p in paired])]
     robustness = _robustness(summaries)
     for name, r in robustness.items():
         axes = list(r["success"]["acc"])
-        lines += ["", f"## Robustness (LIBERO-PRO): {name}", "", _table(
+        lines += ["", f"## Robustness (LIBERO-PRO): {name}", "", markdown_table(
             ["", "ori", *axes, "PRO (mean over axes)", "mean gap"],
-            [[kind, _pct(r[kind]["acc_ori"]), *(f"{_pct(r[kind]['acc'][a])} (gap {_pct(r[kind]['gap'][a])})" for a in axes),
-              _pct(r[kind]["pro"]), _pct(r[kind]["mean_gap"])] for kind in ("success", "elegant")])]
+            [[kind, percent(r[kind]["acc_ori"]), *(f"{percent(r[kind]['acc'][a])} (gap {percent(r[kind]['gap'][a])})" for a in axes),
+              percent(r[kind]["pro"]), percent(r[kind]["mean_gap"])] for kind in ("success", "elegant")])]
     markdown = "\n".join(lines) + "\n"
     files: list[Path] = []
     if out is not None:

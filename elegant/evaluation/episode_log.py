@@ -12,8 +12,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from annotations.format import task_key
-from base_suites.atomic import atomic_write
-from base_suites.errors import UserInputError
+from base_suites.runtime.io import atomic_write
+from base_suites.runtime.errors import UserInputError
 
 
 class EpisodeLog:

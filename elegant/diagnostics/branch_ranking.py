@@ -27,9 +27,9 @@ import numpy as np
 from tqdm import tqdm
 
 from annotations import Demo, DemoFile
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 from critics import auroc, explored_mask
-from elegant.jiti import check_critic_chunk, decide
+from elegant.intervention.jiti import check_critic_chunk, decide
 from elegant.policies.protocol import chunk_of
 
 # Recorded actions are stored as float32; the policy's own are float64.

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.stats import binomtest
 
 from annotations.format import CRITERIA
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 
 Record = Mapping[str, Any]
 

@@ -32,10 +32,10 @@ from annotations.collect import collect_episodes
 from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
-from base_suites.errors import UserInputError
-from base_suites.seeds import derive_seed
-from elegant.evaluation import check_init_states, episode_start, open_policy
-from elegant.jiti import JITI
+from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.seeds import derive_seed
+from elegant.evaluation.runner import check_init_states, episode_start, open_policy
+from elegant.intervention.jiti import JITI
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
 
 

@@ -34,7 +34,7 @@ from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-from base_suites.errors import UserInputError
+from base_suites.runtime.errors import UserInputError
 
 Job = TypeVar("Job")
 Result = TypeVar("Result")

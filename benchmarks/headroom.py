@@ -33,11 +33,12 @@ from typing import Any
 import numpy as np
 
 from base_suites import get_task, make_env
-from base_suites.errors import UserInputError
-from elegant.evaluation import open_critic, open_policy, episode_start
-from elegant.jiti import check_critic_chunk, choose_candidate, decide, draw_candidates, eligible_candidates, plan_distance
+from base_suites.runtime.errors import UserInputError
+from elegant.evaluation.runner import open_critic, open_policy, episode_start
+from elegant.intervention.jiti import check_critic_chunk, choose_candidate, decide, draw_candidates, eligible_candidates, plan_distance
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import chunk_of
+from elegant.reporting.report import save_figure
 
 
 def _rollout(env, monitor, policy, chunk: int, init_index: int, reset_seed: int, prefix: Sequence[np.ndarray],
@@ -216,3 +217,43 @@ def intervention_headroom(
     finally:
         env.close()
     return {"suite": suite, "task": spec.index, "chunk": chunk, "summary": summarize_headroom(results, trust_radius), "episodes": results}
+
+
+_ELEGANT, _ELEGANT_FAR = (0.20, 0.65, 0.30), (0.70, 0.88, 0.72)
+_PLAIN, _PLAIN_FAR = (0.72, 0.72, 0.72), (0.93, 0.93, 0.93)
+
+
+def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: Path) -> Path:
+    """The intervention-headroom branches (`intervention_headroom`): one panel per start, one row per decision
+    point, its candidates ordered by the critic's Q (best on the left); green where executing the
+    candidate led to an elegant success, pale where it lies outside the trust radius; the base action
+    outlined, the critic's choice dotted. Shows at a glance whether rescuing candidates exist and where
+    the critic ranks them."""
+    from matplotlib.figure import Figure
+
+    episodes = [e for e in result["episodes"] if e["points"]]
+    if not episodes:
+        raise UserInputError("plot_headroom: no decision points to draw")
+    n_cand = len(episodes[0]["points"][0]["q"])
+    fig = Figure(figsize=(max(6.0, 3.0 * len(episodes)), 0.35 * max(len(e["points"]) for e in episodes) + 1.6))
+    for i, episode in enumerate(episodes):
+        ax = fig.add_subplot(1, len(episodes), i + 1)
+        image = np.zeros((len(episode["points"]), n_cand, 3))
+        for row, point in enumerate(episode["points"]):
+            q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
+            order = np.argsort(-q, kind="stable")
+            column = np.argsort(order)  # candidate k is drawn in column[k]
+            near = eligible_candidates(distance, trust_radius)
+            for col, k in enumerate(order):
+                image[row, col] = (_ELEGANT if near[k] else _ELEGANT_FAR) if point["elegant"][k] else (_PLAIN if near[k] else _PLAIN_FAR)
+            ax.scatter([column[0]], [row], marker="s", s=60, facecolors="none", edgecolors="black", lw=1)
+            ax.scatter([column[choose_candidate(q, distance, trust_radius)]], [row], marker="o", s=10, color="tab:red")
+        ax.imshow(image, aspect="auto", interpolation="nearest")
+        ax.set_yticks(range(len(episode["points"])), [str(p["step"]) for p in episode["points"]], fontsize=7)
+        ax.set_xticks([0, n_cand - 1], ["best Q", "worst Q"], fontsize=7)
+        ax.set_title(f"init {episode['init_index']}: base {'elegant' if episode['base_elegant'] else 'not elegant'}", fontsize=8)
+        if i == 0:
+            ax.set_ylabel("decision step")
+    fig.suptitle("candidates by critic rank: green = elegant success when executed (pale: outside trust radius); "
+                 "box = base action, dot = critic's choice", fontsize=8)
+    return save_figure(fig, path)

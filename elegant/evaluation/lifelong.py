@@ -16,7 +16,7 @@ follows LIBERO's `Sequential.learn_one_task` and `compute_metric`:
 - After task k the kept network is evaluated on every task j <= k: S[k, j] and S_elegant[k, j]. S[k, k]
   is the evaluation of the kept checkpoint on task k that already ran while learning it (episode starts
   depend only on the seed, and the policy acts deterministically), so it is read, not run again.
-- FWT, NBT and AUC come from `elegant.metrics.lifelong_metrics`, once on (S, C), once on the elegant pair,
+- FWT, NBT and AUC come from `elegant.evaluation.metrics.lifelong_metrics`, once on (S, C), once on the elegant pair,
   whose curves are clamped at the checkpoints kept by success (the ones S_elegant evaluates).
 
 Layout of OUT (k is the position in the learning order, e an evaluation epoch)::
@@ -45,16 +45,16 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import get_task
-from base_suites.atomic import atomic_write, atomic_write_json, changed_fields, read_json_file
-from base_suites.errors import UserInputError
-from base_suites.parallel import check_workers
-from elegant.evaluation import evaluate
-from elegant.metrics import lifelong_metrics
+from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
+from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.jobs import check_workers
+from elegant.evaluation.runner import evaluate
+from elegant.evaluation.metrics import lifelong_metrics
 from elegant.policies.bc_data import load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import DEFAULT_MODES
 from elegant.policies.bc_train import BCConfig, select_tasks, snapshot_dir, train_policy
-from elegant.report import _pct, _save, _table
+from elegant.reporting.report import percent, markdown_table, save_figure
 
 
 @dataclass
@@ -258,7 +258,7 @@ def _plot_matrices(S: np.ndarray, labels: list[str], path: Path) -> Path:
     axes[0].set_yticks(range(K), labels, fontsize=7)
     axes[0].set_ylabel("after learning task i")
     fig.colorbar(image, ax=list(axes), shrink=0.8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _plot_curves(C: np.ndarray, epochs: list[int], kept: list[int], labels: list[str], path: Path) -> Path:
@@ -275,7 +275,7 @@ def _plot_curves(C: np.ndarray, epochs: list[int], kept: list[int], labels: list
         ax.set_ylabel("rate")
         ax.set_title(title, fontsize=10)
         ax.legend(fontsize=7, loc="best")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarray) -> None:
@@ -286,7 +286,7 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
     _plot_curves(C, cfg["eval_epochs"], result["kept_epochs"], labels, out / "learning_curves.png")
 
     def pair(s: float, e: float) -> str:
-        return "—" if np.isnan(s) else f"{_pct(s)} / {_pct(e)}"
+        return "—" if np.isnan(s) else f"{percent(s)} / {percent(e)}"
 
     metrics = [[name, *(f"{result[m][key]:.3f}" for key in ("fwt", "nbt", "auc"))]
                for name, m in (("success", "metrics"), ("elegant success (ESR)", "metrics_elegant"))]
@@ -301,20 +301,20 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
         "",
         "## Metrics",
         "",
-        _table(["from", "FWT", "NBT", "AUC"], metrics),
+        markdown_table(["from", "FWT", "NBT", "AUC"], metrics),
         "",
         "FWT: mean of the learning curves C (clamped at their best). NBT: mean drop of a task's success after "
         "later tasks were learned (lower is better). AUC: per task, learning curve and later successes together.",
         "",
         "## Success matrix S: success / ESR on task j (column) after learning task i (row)",
         "",
-        _table(["after \\ on", *labels], [[labels[i], *(pair(S[0, i, j], S[1, i, j]) for j in range(len(labels)))] for i in range(len(labels))]),
+        markdown_table(["after \\ on", *labels], [[labels[i], *(pair(S[0, i, j], S[1, i, j]) for j in range(len(labels)))] for i in range(len(labels))]),
         "",
         "![success matrix](success_matrix.png)",
         "",
         "## Learning curves C: success / ESR on the task being learned, per evaluation epoch",
         "",
-        _table(["task", *(f"epoch {e}" for e in cfg["eval_epochs"])],
+        markdown_table(["task", *(f"epoch {e}" for e in cfg["eval_epochs"])],
                [[labels[k], *(pair(C[0, k, i], C[1, k, i]) for i in range(C.shape[2]))] for k in range(len(labels))]),
         "",
         "![learning curves](learning_curves.png)",

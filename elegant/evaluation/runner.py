@@ -30,14 +30,14 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
-from base_suites.atomic import atomic_write, changed_fields, read_json_file
-from base_suites.parallel import check_picklable, check_workers, run_jobs
-from base_suites.seeds import derive_seed
-from elegant.episode_log import EpisodeLog, run_records
-from elegant.jiti import JITI
-from elegant.metrics import summarize
+from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
+from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
+from base_suites.runtime.seeds import derive_seed
+from elegant.evaluation.episode_log import EpisodeLog, run_records
+from elegant.intervention.jiti import JITI
+from elegant.evaluation.metrics import summarize
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
-from elegant.report import write_run_report
+from elegant.reporting.report import write_run_report
 
 JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius", "random_rate", "min_gain", "trigger",
                  "max_overrides", "warmup")
@@ -187,8 +187,8 @@ def evaluate(
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
     object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
     task, starting from `init_states` only (None: all shipped init states; see `episode_start`). `gate`:
-    a file from `elegant gate` (`elegant.gate`) naming the mode each task runs in (base, jiti or always).
-    `workers`: processes running episodes side by side (`base_suites.parallel`); the numbers do not
+    a file from `elegant gate` (`elegant.intervention.gate`) naming the mode each task runs in (base, jiti or always).
+    `workers`: processes running episodes side by side (`base_suites.runtime.jobs`); the numbers do not
     depend on it, and with more than one the policy and critic must be directories or picklable.
     `policy_act`: how a BC policy directory acts, one of POLICY_ACTS (`elegant.policies.bc_policy`
     explains each).
@@ -220,7 +220,7 @@ def evaluate(
                  "jiti": {k: v for k, v in agent.config().items() if k != "mode"}}
     task_modes = None
     if gate is not None:
-        from elegant.gate import read_gate
+        from elegant.intervention.gate import read_gate
 
         task_modes = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen, described)
     config = {

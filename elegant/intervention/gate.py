@@ -39,8 +39,8 @@ from pathlib import Path
 from typing import Any
 
 from base_suites import UserInputError
-from base_suites.atomic import atomic_write, read_json_file
-from elegant.episode_log import EpisodeLog
+from base_suites.runtime.io import atomic_write, read_json_file
+from elegant.evaluation.episode_log import EpisodeLog
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
 
 GATE_FORMAT = "libero-elegant-gate/3"

@@ -34,7 +34,7 @@ def atomic_write_json(path: str | os.PathLike, data: Any) -> None:
 
 def read_json_file(path: str | os.PathLike, what: str) -> Any:
     """Read a JSON file that a command wrote, refusing a corrupt one with one line naming it."""
-    from base_suites.errors import UserInputError
+    from base_suites.runtime.errors import UserInputError
 
     try:
         with open(path, encoding="utf-8") as f:
@@ -77,7 +77,7 @@ def library_versions() -> dict[str, str]:
 def read_artifact_config(path: str | os.PathLike, *, kind: str, config_file: str, weights_file: str, fmt: str, hint: str) -> dict:
     """Check a saved model directory (exists, has its config and weights, right format) and return its
     config; every failure is one line naming the directory or file. `hint` says how to make one."""
-    from base_suites.errors import UserInputError
+    from base_suites.runtime.errors import UserInputError
 
     path = os.fspath(path)
     if not os.path.isdir(path):
