@@ -1,4 +1,5 @@
 """The annotated-episode dataset: HDF5 layout, reading/writing, features for multi-task models, labelling."""
+
 from annotations.dataset import Demo, DemoFile, DemoWriter, read_attrs
 from annotations.features import TaskFeatureEncoder
 from annotations.format import ANNOTATION_SCHEMA_VERSION, CRITERIA, FORMAT_VERSION, SEGMENT_LENGTH, task_key
@@ -6,7 +7,21 @@ from annotations.human_labels import HumanLabel, apply_human_labels, export_segm
 from annotations.labelling import annotate_file, discounted_return_to_go, replay_verdict
 
 __all__ = [
-    "ANNOTATION_SCHEMA_VERSION", "CRITERIA", "Demo", "DemoFile", "DemoWriter", "FORMAT_VERSION", "HumanLabel",
-    "SEGMENT_LENGTH", "TaskFeatureEncoder", "annotate_file", "apply_human_labels", "discounted_return_to_go",
-    "export_segment_labels", "read_attrs", "read_human_labels", "replay_verdict", "task_key",
+    "ANNOTATION_SCHEMA_VERSION",
+    "CRITERIA",
+    "Demo",
+    "DemoFile",
+    "DemoWriter",
+    "FORMAT_VERSION",
+    "HumanLabel",
+    "SEGMENT_LENGTH",
+    "TaskFeatureEncoder",
+    "annotate_file",
+    "apply_human_labels",
+    "discounted_return_to_go",
+    "export_segment_labels",
+    "read_attrs",
+    "read_human_labels",
+    "replay_verdict",
+    "task_key",
 ]

@@ -5,6 +5,7 @@ A demo collection's episode i of a task starts from shipped init state i (mod 50
 knobs come from (seed, task, i), so a collection interrupted and resumed produces exactly the file an
 uninterrupted run would have.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,11 +20,10 @@ import numpy as np
 from annotations.dataset import Demo, DemoWriter
 from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
-from base_suites.runtime.io import changed_fields
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import changed_fields
 from base_suites.runtime.jobs import check_picklable, check_workers, in_order, run_jobs
 from base_suites.runtime.seeds import derive_seed
-
 
 DEMO_HORIZON_FACTOR = 2
 
@@ -35,11 +35,21 @@ def dataset_attrs(env: LiberoEnv, suite: str, tasks: Sequence[int]) -> dict[str,
         "env_args": {
             "env_name": "libero",
             "type": 1,
-            "env_kwargs": {"suite": suite, "tasks": list(tasks), "controller": "OSC_POSE", "control_freq": 20,
-                           "settle_steps": env.settle_steps, "obs": "lowdim", "hard_reset": False},
+            "env_kwargs": {
+                "suite": suite,
+                "tasks": list(tasks),
+                "controller": "OSC_POSE",
+                "control_freq": 20,
+                "settle_steps": env.settle_steps,
+                "obs": "lowdim",
+                "hard_reset": False,
+            },
         },
-        "problem_info": {"problem_name": type(domain).__name__.lower(), "domain_name": "robosuite",
-                         "language_instruction": env.instruction},
+        "problem_info": {
+            "problem_name": type(domain).__name__.lower(),
+            "domain_name": "robosuite",
+            "language_instruction": env.instruction,
+        },
         "language_instruction": env.instruction,
         "bddl_file_name": env.task.bddl_file,
     }
@@ -98,20 +108,34 @@ def collect_episodes(
     if workers > 1:
         check_picklable(make_source, "the policy or expert of these episodes")
     specs = task_specs(suite, tasks)
-    collection = json.loads(json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings}))
-    writer = DemoWriter(out, _file_attrs(out, resume, suite, specs, seed, horizon, perturbation, collection), resume=resume)
+    collection = json.loads(
+        json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings})
+    )
+    writer = DemoWriter(
+        out, _file_attrs(out, resume, suite, specs, seed, horizon, perturbation, collection), resume=resume
+    )
     bar = None
     try:
         # the episode count too: demo_<i> is episode i mod episodes of task i // episodes
         changed = changed_fields(writer.attrs.get("collection"), collection)
         if changed:
-            raise UserInputError(f"{out}.partial: cannot resume with different {', '.join(k for k, _, _ in changed)}; "
-                                 "delete it or collect with its settings")
+            raise UserInputError(
+                f"{out}.partial: cannot resume with different {', '.join(k for k, _, _ in changed)}; "
+                "delete it or collect with its settings"
+            )
         done_before = writer.count
-        jobs = [EpisodeJob(pos * episodes + i, spec.index, i) for pos, spec in enumerate(specs) for i in range(episodes)
-                if pos * episodes + i >= done_before]
-        recorder = partial(EpisodeRecorder, make_source, suite, seed, {s.index: horizon(s) for s in specs}, perturbation)
-        bar = tqdm(total=len(specs) * episodes, initial=done_before, desc=f"{desc} {suite}", disable=not progress, unit="ep")
+        jobs = [
+            EpisodeJob(pos * episodes + i, spec.index, i)
+            for pos, spec in enumerate(specs)
+            for i in range(episodes)
+            if pos * episodes + i >= done_before
+        ]
+        recorder = partial(
+            EpisodeRecorder, make_source, suite, seed, {s.index: horizon(s) for s in specs}, perturbation
+        )
+        bar = tqdm(
+            total=len(specs) * episodes, initial=done_before, desc=f"{desc} {suite}", disable=not progress, unit="ep"
+        )
         with run_jobs(recorder, jobs, workers) as results:
             for _, (demo, layout) in in_order(results, lambda job: job.position, first=done_before):
                 writer.append(demo, layout)
@@ -125,8 +149,16 @@ def collect_episodes(
             bar.close()
 
 
-def _file_attrs(out: str, resume: bool, suite: str, specs: Sequence[Any], seed: int, horizon: Callable[[Any], int],
-                perturbation: str | None, collection: Mapping[str, Any]) -> dict[str, Any]:
+def _file_attrs(
+    out: str,
+    resume: bool,
+    suite: str,
+    specs: Sequence[Any],
+    seed: int,
+    horizon: Callable[[Any], int],
+    perturbation: str | None,
+    collection: Mapping[str, Any],
+) -> dict[str, Any]:
     """The new file's `data` attributes, read off the first task's env; none when an interrupted file is
     resumed (it keeps its own), so a resume builds no env before its settings are checked."""
     if resume and os.path.exists(out + ".partial"):
@@ -151,9 +183,21 @@ class EpisodeRecorder:
     """Records episodes (`EpisodeJob`) of one source, keeping one env between the episodes of a task
     (building one costs ~2.5 s); returns each as a `Demo` with its env's state layout."""
 
-    def __init__(self, make_source: Callable[[], EpisodeSource], suite: str, seed: int, horizons: Mapping[int, int],
-                 perturbation: str | None) -> None:
-        self.source, self.suite, self.seed, self.horizons, self.perturbation = make_source(), suite, seed, horizons, perturbation
+    def __init__(
+        self,
+        make_source: Callable[[], EpisodeSource],
+        suite: str,
+        seed: int,
+        horizons: Mapping[int, int],
+        perturbation: str | None,
+    ) -> None:
+        self.source, self.suite, self.seed, self.horizons, self.perturbation = (
+            make_source(),
+            suite,
+            seed,
+            horizons,
+            perturbation,
+        )
         self._env: LiberoEnv | None = None
         self._spec: Any = None
 
@@ -161,8 +205,13 @@ class EpisodeRecorder:
         if self._spec is None or self._spec.index != job.task_index:
             self.close()
             self._spec = task_specs(self.suite, [job.task_index])[0]
-            self._env = make_env(self.suite, job.task_index, seed=self.seed, max_steps=self.horizons[job.task_index],
-                                 perturbation=self.perturbation)
+            self._env = make_env(
+                self.suite,
+                job.task_index,
+                seed=self.seed,
+                max_steps=self.horizons[job.task_index],
+                perturbation=self.perturbation,
+            )
             self.source.for_task(self._env, self._spec)
         env, spec, source = self._env, self._spec, self.source
         init, reset_seed = source.start(spec, job.episode)
@@ -171,13 +220,27 @@ class EpisodeRecorder:
         source.begin(env, job.episode, reset_seed)
         record = record_episode(env, source, obs)
         demo = Demo(
-            name="", actions=record["actions"], states=record["states"], obs=record["obs"],
-            next_obs=record["next_obs"], rewards=record["rewards"], dones=record["dones"], final_state=record["final_state"],
+            name="",
+            actions=record["actions"],
+            states=record["states"],
+            obs=record["obs"],
+            next_obs=record["next_obs"],
+            rewards=record["rewards"],
+            dones=record["dones"],
+            final_state=record["final_state"],
             attrs={
-                "suite": self.suite, "task_index": spec.index, "task_name": spec.name,
-                "language_instruction": env.instruction, "init_state_index": init, "seed": self.seed,
-                "episode": job.episode, "success": record["success"], "perturbation": record["perturbation"],
-                "reset_seed": reset_seed, "fixture_layout": layout, **source.episode_attrs(),
+                "suite": self.suite,
+                "task_index": spec.index,
+                "task_name": spec.name,
+                "language_instruction": env.instruction,
+                "init_state_index": init,
+                "seed": self.seed,
+                "episode": job.episode,
+                "success": record["success"],
+                "perturbation": record["perturbation"],
+                "reset_seed": reset_seed,
+                "fixture_layout": layout,
+                **source.episode_attrs(),
             },
         )
         return demo, env.metadata["state_layout"]
@@ -212,7 +275,11 @@ class _ExpertSource:
     def episode_attrs(self) -> dict[str, Any]:
         from base_suites.experts import EXPERT_VERSION
 
-        return {"knobs": dict(self.expert.knobs), "knob_events": list(self.expert.events), "expert_version": EXPERT_VERSION}
+        return {
+            "knobs": dict(self.expert.knobs),
+            "knob_events": list(self.expert.events),
+            "expert_version": EXPERT_VERSION,
+        }
 
 
 def collect_demos(
@@ -236,9 +303,20 @@ def collect_demos(
 
     knob_rates(quality)  # validate before any work
     # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
-    path = collect_episodes(suite, tasks, episodes, out, partial(_ExpertSource, quality, seed), seed=seed, resume=resume,
-                            progress=progress, horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps, desc="demos",
-                            settings={"quality": quality}, workers=workers)
+    path = collect_episodes(
+        suite,
+        tasks,
+        episodes,
+        out,
+        partial(_ExpertSource, quality, seed),
+        seed=seed,
+        resume=resume,
+        progress=progress,
+        horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps,
+        desc="demos",
+        settings={"quality": quality},
+        workers=workers,
+    )
     from annotations.dataset import DemoFile
 
     with DemoFile(path) as f:
@@ -273,8 +351,13 @@ def record_episode(env: LiberoEnv, policy, obs: Mapping[str, np.ndarray]) -> dic
     dones = np.zeros(len(actions), dtype=np.uint8)
     dones[-1] = 1
     return {
-        "actions": np.array(actions), "states": np.array(states), "obs": np.array(observations),
-        "next_obs": np.array(next_observations), "rewards": np.array(rewards, dtype=np.float32),
-        "dones": dones, "success": bool(info["success"]), "perturbation": info["perturbation"],
+        "actions": np.array(actions),
+        "states": np.array(states),
+        "obs": np.array(observations),
+        "next_obs": np.array(next_observations),
+        "rewards": np.array(rewards, dtype=np.float32),
+        "dones": dones,
+        "success": bool(info["success"]),
+        "perturbation": info["perturbation"],
         "final_state": env.get_sim_state(),
     }

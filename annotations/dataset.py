@@ -4,6 +4,7 @@ Writing is crash-safe and resumable: demos go to `<out>.partial`, flushed after 
 file is renamed to `<out>` only when the writer is closed as complete. A resumed writer reopens the
 partial file and continues after the demos it already holds.
 """
+
 from __future__ import annotations
 
 import json
@@ -96,7 +97,9 @@ class DemoFile:
         if version is not None and str(version).split("/")[0] != FORMAT_VERSION.split("/")[0]:
             raise UserInputError(f"{self.path}: data.format_version is {version!r}, expected {FORMAT_VERSION!r}")
         if version is not None and str(version) != FORMAT_VERSION:
-            raise UserInputError(f"{self.path}: data.format_version {version!r} is not supported; expected {FORMAT_VERSION!r}")
+            raise UserInputError(
+                f"{self.path}: data.format_version {version!r} is not supported; expected {FORMAT_VERSION!r}"
+            )
         self.names = sorted((n for n in self._h5["data"] if n.startswith("demo_")), key=demo_index)
         if require_labels and not self.annotated:
             raise UserInputError(f"{self.path}: no ITC labels (data.annotation missing); run `elegant annotate` first")
@@ -147,7 +150,7 @@ class DemoFile:
     def close(self) -> None:
         self._h5.close()
 
-    def __enter__(self) -> "DemoFile":
+    def __enter__(self) -> DemoFile:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -5,6 +5,7 @@ policy, the critic) take the state zero-padded to the widest layout they were tr
 a one-hot of the task. The encoder remembers the exact layout of every task it knows, so a model can
 refuse an env whose layout differs instead of silently reading the wrong numbers.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -31,13 +32,18 @@ class TaskFeatureEncoder:
         try:
             return self.tasks.index(key)
         except ValueError:
-            raise UserInputError(f"task {key!r} is not among the tasks this model was trained on: {', '.join(self.tasks)}") from None
+            raise UserInputError(
+                f"task {key!r} is not among the tasks this model was trained on: {', '.join(self.tasks)}"
+            ) from None
 
     def check_env(self, metadata: Mapping[str, Any], model_path: str = "model") -> str:
         """Return the env's task key, refusing an unknown task or a different state layout."""
         key = task_key(metadata["suite"], metadata["task_index"])
         if key not in self.layouts:
-            raise UserInputError(f"{model_path}: env task {key!r} is not among the tasks the model was trained on: {', '.join(self.tasks)}")
+            raise UserInputError(
+                f"{model_path}: env task {key!r} is not among the tasks the model was trained on: "
+                f"{', '.join(self.tasks)}"
+            )
         got = [[str(n), int(s)] for n, s in metadata["state_layout"]]
         if got != self.layouts[key]:
             raise UserInputError(
@@ -59,5 +65,5 @@ class TaskFeatureEncoder:
         return {"layouts": self.layouts}
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "TaskFeatureEncoder":
+    def from_dict(cls, data: Mapping[str, Any]) -> TaskFeatureEncoder:
         return cls(data["layouts"])

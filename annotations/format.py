@@ -31,9 +31,18 @@ One file holds demos of one or more tasks::
 Step 0 is the first policy step after the settle phase. A task is keyed "<suite>/<task_index>".
 The format is versioned from day one: readers refuse files of another major version.
 """
+
 from __future__ import annotations
 
-__all__ = ["ANNOTATION_SCHEMA_VERSION", "CRITERIA", "FORMAT_VERSION", "SEGMENT_LENGTH", "demo_index", "demo_name", "task_key"]
+__all__ = [
+    "ANNOTATION_SCHEMA_VERSION",
+    "CRITERIA",
+    "FORMAT_VERSION",
+    "SEGMENT_LENGTH",
+    "demo_index",
+    "demo_name",
+    "task_key",
+]
 
 from itc import CRITERIA, ITCParams
 

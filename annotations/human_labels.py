@@ -12,6 +12,7 @@ ends at its last frame). `label` is kept/violated or 1/0. A human label replaces
 those windows, and every step in them takes the same value, so the elegance reward agrees with the
 windows. Bad rows are refused with the CSV line number ("row N" counts the header as row 1).
 """
+
 from __future__ import annotations
 
 import csv
@@ -54,7 +55,9 @@ def _listing(values: list[int]) -> str:
     return ", ".join(map(str, values)) if len(values) <= 4 else f"{values[0]}, {values[1]}, ..., {values[-1]}"
 
 
-def _parse_row(path: str, row: int, cells: list[str], demo_lengths: Mapping[str, int], segment_length: int) -> HumanLabel:
+def _parse_row(
+    path: str, row: int, cells: list[str], demo_lengths: Mapping[str, int], segment_length: int
+) -> HumanLabel:
     if len(cells) != len(HEADER):
         raise UserInputError(f"{path}: row {row}: expected {len(HEADER)} fields ({','.join(HEADER)}), got {len(cells)}")
     demo, start_text, end_text, criterion, label = (c.strip() for c in cells)
@@ -72,15 +75,15 @@ def _parse_row(path: str, row: int, cells: list[str], demo_lengths: Mapping[str,
             f"it, the inclusive last frame of a window ({_listing(ends)})"
         )
     if criterion not in CRITERIA:
-        raise UserInputError(f"{path}: row {row}: unknown criterion {criterion!r}; expected one of: {', '.join(CRITERIA)}")
+        raise UserInputError(
+            f"{path}: row {row}: unknown criterion {criterion!r}; expected one of: {', '.join(CRITERIA)}"
+        )
     if label.lower() not in LABELS:
         raise UserInputError(f"{path}: row {row}: unknown label {label!r}; expected one of: kept, violated, 1, 0")
     return HumanLabel(row, demo, starts.index(start), ends.index(end), criterion, LABELS[label.lower()])
 
 
-def read_human_labels(
-    path: str, demo_lengths: Mapping[str, int], segment_length: int
-) -> dict[str, list[HumanLabel]]:
+def read_human_labels(path: str, demo_lengths: Mapping[str, int], segment_length: int) -> dict[str, list[HumanLabel]]:
     """Validated labels per demo name; `demo_lengths` maps each demo of the labelled file to its length."""
     if not os.path.exists(path):
         raise UserInputError(f"{path}: no such labels file")
@@ -129,7 +132,9 @@ def export_segment_labels(annotated_path: str, csv_path: str) -> int:
                 for demo in demos:
                     for w, (start, end) in enumerate(window_bounds(demo.num_samples, length)):
                         for c in CRITERIA:
-                            writer.writerow([demo.name, start, end, c, "kept" if demo.itc_segments[c][w] else "violated"])
+                            writer.writerow(
+                                [demo.name, start, end, c, "kept" if demo.itc_segments[c][w] else "violated"]
+                            )
                             rows += 1
             os.replace(tmp, csv_path)
         except BaseException:

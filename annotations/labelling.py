@@ -13,6 +13,7 @@ same labelling works for our scripted demos and for imported LIBERO demos. The a
 in `annotations.format`) adds per-step and per-window labels, the elegance reward and its discounted
 return-to-go; human labels from a CSV replace automatic windows.
 """
+
 from __future__ import annotations
 
 import json
@@ -81,12 +82,16 @@ class _EnvPool:
     def get(self, demo: Demo) -> tuple[LiberoEnv, ITCMonitor]:
         for key in ("suite", "task_index"):
             if key not in demo.attrs:
-                raise UserInputError(f"{self.path}: data/{demo.name} has no attribute {key!r} (needed to rebuild its task)")
+                raise UserInputError(
+                    f"{self.path}: data/{demo.name} has no attribute {key!r} (needed to rebuild its task)"
+                )
         records = demo.attrs.get("perturbation") or []
         key = json.dumps([demo.attrs["suite"], int(demo.attrs["task_index"]), records], sort_keys=True)
         if key not in self._open:
             perturbations = [make_perturbation(r["axis"], int(r.get("seed", 0)), r.get("mode")) for r in records]
-            env = make_env(demo.attrs["suite"], int(demo.attrs["task_index"]), perturbation=perturbations, settle_steps=0)
+            env = make_env(
+                demo.attrs["suite"], int(demo.attrs["task_index"]), perturbation=perturbations, settle_steps=0
+            )
             self._open[key] = (env, ITCMonitor(env, derive_spec(env, self.overrides_dir), self.params))
             while len(self._open) > self.capacity:
                 self._open.popitem(last=False)[1][0].close()
@@ -133,10 +138,19 @@ def _labelled(demo: Demo, verdict: EpisodeVerdict, gamma: float) -> Demo:
     attrs = {k: v for k, v in demo.attrs.items() if k != "num_samples"}
     attrs.update(success=verdict.success, elegant=verdict.elegant, violated=verdict.violated)
     return Demo(
-        name=demo.name, actions=demo.actions, states=demo.states, obs=demo.obs, next_obs=demo.next_obs,
-        rewards=demo.rewards, dones=demo.dones, attrs=attrs, final_state=demo.final_state,
-        itc={c: verdict.steps[c] for c in CRITERIA}, itc_segments={c: verdict.segments[c] for c in CRITERIA},
-        elegance_reward=reward, mc_return=discounted_return_to_go(reward, gamma),
+        name=demo.name,
+        actions=demo.actions,
+        states=demo.states,
+        obs=demo.obs,
+        next_obs=demo.next_obs,
+        rewards=demo.rewards,
+        dones=demo.dones,
+        attrs=attrs,
+        final_state=demo.final_state,
+        itc={c: verdict.steps[c] for c in CRITERIA},
+        itc_segments={c: verdict.segments[c] for c in CRITERIA},
+        elegance_reward=reward,
+        mc_return=discounted_return_to_go(reward, gamma),
     )
 
 
@@ -214,13 +228,16 @@ def annotate_file(
             replayer = partial(_Replayer, params, overrides_dir, in_path)
             with run_jobs(replayer, jobs, workers) as results:
                 ordered = in_order(results, lambda job: job[0], first=done_before)
-                for (_, name), verdict in tqdm(ordered, total=len(jobs), desc="annotate", unit="demo", disable=not progress):
+                for (_, name), verdict in tqdm(
+                    ordered, total=len(jobs), desc="annotate", unit="demo", disable=not progress
+                ):
                     verdict = apply_human_labels(verdict, human.get(name, []))
                     writer.append(_labelled(source.demo(name), verdict, gamma))
-                    records.append({"success": verdict.success, "elegant": verdict.elegant, "violated": verdict.violated})
+                    records.append(
+                        {"success": verdict.success, "elegant": verdict.elegant, "violated": verdict.violated}
+                    )
             writer.finish()
         except BaseException:
             writer.abandon()
             raise
     return _summary(records, in_path, out_path, sum(len(v) for v in human.values()))
-

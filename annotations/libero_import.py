@@ -4,6 +4,7 @@ LIBERO stores, per demo, the flattened MuJoCo `states` and the `actions` (plus i
 states). Replaying the stored states in the same task's env gives exactly our low-dimensional
 observations, so a user's real demos flow through annotation, critic and policy training unchanged.
 """
+
 from __future__ import annotations
 
 import os
@@ -21,14 +22,16 @@ from base_suites.suites import MAIN_SUITES, TaskSpec
 def find_task(bddl_file_name: str, suite: str | None = None) -> TaskSpec:
     """The task whose BDDL file has the same name as the one a LIBERO file was recorded with."""
     name = os.path.basename(str(bddl_file_name))
-    for candidate in ([suite] if suite else list(MAIN_SUITES)):
+    for candidate in [suite] if suite else list(MAIN_SUITES):
         for task in list_tasks(candidate):
             if os.path.basename(task.bddl_file) == name:
                 return task
     raise UserInputError(f"no LIBERO task has BDDL file {name!r}; pass --suite and --task explicitly")
 
 
-def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: int | None = None, progress: bool = True) -> dict[str, Any]:
+def import_libero_hdf5(
+    path: str, out: str, *, suite: str | None = None, task: int | None = None, progress: bool = True
+) -> dict[str, Any]:
     """Replay every demo of a LIBERO HDF5 file and write it in this project's layout to `out`."""
     from tqdm import tqdm
 
@@ -53,11 +56,20 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
             raise UserInputError(f"{path}: no demo_<i> groups under data")
         env = make_env(spec.suite, spec.index, seed=0)
         state_dim = env.get_sim_state().shape[0]
-        writer = DemoWriter(out, {
-            "env_args": {"env_name": "libero", "type": 1, "env_kwargs": {"suite": spec.suite, "tasks": [spec.index], "source": os.path.abspath(path)}},
-            "problem_info": attrs.get("problem_info", {}), "language_instruction": spec.language,
-            "bddl_file_name": spec.bddl_file, "imported_from": "libero",
-        })
+        writer = DemoWriter(
+            out,
+            {
+                "env_args": {
+                    "env_name": "libero",
+                    "type": 1,
+                    "env_kwargs": {"suite": spec.suite, "tasks": [spec.index], "source": os.path.abspath(path)},
+                },
+                "problem_info": attrs.get("problem_info", {}),
+                "language_instruction": spec.language,
+                "bddl_file_name": spec.bddl_file,
+                "imported_from": "libero",
+            },
+        )
         successes = []
         try:
             for name in tqdm(names, desc="import", disable=not progress, unit="demo"):
@@ -68,7 +80,8 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
                 states, actions = g["states"][()], g["actions"][()]
                 if states.shape[1] != state_dim:
                     raise UserInputError(
-                        f"{path}: data/{name}/states has {states.shape[1]} values per step, but task {spec.suite}/{spec.index} has {state_dim}"
+                        f"{path}: data/{name}/states has {states.shape[1]} values per step, but task "
+                        f"{spec.suite}/{spec.index} has {state_dim}"
                     )
                 model_xml = g.attrs.get("model_file")
                 if isinstance(model_xml, bytes):
@@ -82,8 +95,15 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
                 except UserInputError as e:
                     raise UserInputError(f"{path}: data/{name}: {e}") from None
                 demo.attrs.update(
-                    suite=spec.suite, task_index=spec.index, task_name=spec.name, language_instruction=spec.language,
-                    init_state_index=0, seed=0, knobs={}, expert_version="human:libero", source_demo=name,
+                    suite=spec.suite,
+                    task_index=spec.index,
+                    task_name=spec.name,
+                    language_instruction=spec.language,
+                    init_state_index=0,
+                    seed=0,
+                    knobs={},
+                    expert_version="human:libero",
+                    source_demo=name,
                 )
                 successes.append(demo.attrs["success"])
                 writer.append(demo, env.metadata["state_layout"])
@@ -93,7 +113,12 @@ def import_libero_hdf5(path: str, out: str, *, suite: str | None = None, task: i
             raise
         finally:
             env.close()
-    return {"out": out, "task": f"{spec.suite}/{spec.index}", "demos": len(names), "success_rate": float(np.mean(successes))}
+    return {
+        "out": out,
+        "task": f"{spec.suite}/{spec.index}",
+        "demos": len(names),
+        "success_rate": float(np.mean(successes)),
+    }
 
 
 def replay_states(env, states: np.ndarray, actions: np.ndarray, layout: dict | None = None) -> Demo:
@@ -110,5 +135,13 @@ def replay_states(env, states: np.ndarray, actions: np.ndarray, layout: dict | N
     rewards[-1] = float(info["success"])
     dones = np.zeros(len(actions), dtype=np.uint8)
     dones[-1] = 1
-    return Demo(name="", actions=actions, states=states, obs=obs, next_obs=next_obs, rewards=rewards, dones=dones,
-                attrs={"success": bool(info["success"]), "perturbation": [], "fixture_layout": env.fixture_layout()})
+    return Demo(
+        name="",
+        actions=actions,
+        states=states,
+        obs=obs,
+        next_obs=next_obs,
+        rewards=rewards,
+        dones=dones,
+        attrs={"success": bool(info["success"]), "perturbation": [], "fixture_layout": env.fixture_layout()},
+    )

@@ -4,6 +4,7 @@ Rendering backends are chosen from environment variables when robosuite is first
 headless defaults (OSMesa, which works without a display or GPU) are set here before that import.
 Keeping the import lazy also keeps `elegant --help` instant.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -19,7 +20,7 @@ def _configure_headless_rendering() -> None:
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def libero_modules() -> dict[str, ModuleType]:
     """Import LIBERO's benchmark and env-wrapper modules once, quietly."""
     _configure_headless_rendering()

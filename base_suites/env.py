@@ -17,8 +17,9 @@ identifier and overfits (goal/1 success 85-88% -> 33-60% over two training seeds
 critic ranks held-out alternatives no better (advantage AUROC 0.68 against 0.70 without). With 100
 demos per task, JITI with critics that also see the fixtures' poses scores -1.0 ESR on libero_goal's
 validation starts against +4.2 with state-only critics, and a policy that sees them is no stronger held
-out (63.0 / 54.8 success / ESR against 63.8 / 52.0; benchmarks/RESULTS.md, session 38).
+out (63.0 / 54.8 success / ESR against 63.8 / 52.0; docs/lab/jiti-sessions-30-38.md).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
@@ -29,8 +30,8 @@ import gymnasium as gym
 import numpy as np
 
 from base_suites._libero import libero_modules
-from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.sim_view import SimView
 from base_suites.suites import TaskSpec, get_task
 
@@ -271,7 +272,9 @@ class LiberoEnv(gym.Env):
         bodies = self._fixture_bodies()
         where = f"task {self.task.suite}/{self.task.index}"
         if not isinstance(layout, Mapping):
-            raise UserInputError(f"fixture layout must map fixture names to [x, y, z, qw, qx, qy, qz], got {type(layout).__name__}")
+            raise UserInputError(
+                f"fixture layout must map fixture names to [x, y, z, qw, qx, qy, qz], got {type(layout).__name__}"
+            )
         poses = {}
         for name, pose in layout.items():
             if name not in bodies:
@@ -279,7 +282,9 @@ class LiberoEnv(gym.Env):
             try:
                 poses[name] = np.asarray(pose, dtype=float).reshape(7)
             except (TypeError, ValueError):
-                raise UserInputError(f"fixture layout of {name!r} is {pose!r}; expected 7 numbers (x, y, z, qw, qx, qy, qz)") from None
+                raise UserInputError(
+                    f"fixture layout of {name!r} is {pose!r}; expected 7 numbers (x, y, z, qw, qx, qy, qz)"
+                ) from None
         model = self.domain.sim.model._model
         for name, pose in poses.items():
             model.body_pos[bodies[name]] = pose[:3]
@@ -303,7 +308,9 @@ class LiberoEnv(gym.Env):
             if body is None or not body.get("pos"):
                 raise UserInputError(f"model XML has no body {body_name!r} with a 'pos' (fixture {name})")
             try:
-                pose = [float(v) for v in body.get("pos").split()] + [float(v) for v in (body.get("quat") or "1 0 0 0").split()]
+                pose = [float(v) for v in body.get("pos").split()] + [
+                    float(v) for v in (body.get("quat") or "1 0 0 0").split()
+                ]
             except ValueError:
                 raise UserInputError(f"model XML body {body_name!r}: pos/quat are not numbers") from None
             if len(pose) != 7:

@@ -2,12 +2,14 @@
 
 Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved
 0.2-0.3 m; or, `init@nudge`, up to 2 cm: fresh starts, not a robustness test), `language` (paraphrased
-or target-swapped instruction) and `env` (floor, wall and table swap). Each operator acts at the stage where the change belongs: before the env is built (which BDDL
+or target-swapped instruction) and `env` (floor, wall and table swap). Each operator acts at the stage where the
+change belongs: before the env is built (which BDDL
 file, which instruction, which scene textures), right after it is built (colours), or after every reset
 (positions). The package's shipped LIBERO-PRO variants are used where they exist (`mode="shipped"`); by
 default new variants are generated from the seed, so the number of distinct perturbed tasks is unbounded.
 What each operator did is returned by `describe()` and recorded in `info` and episode metadata.
 """
+
 from __future__ import annotations
 
 import re
@@ -19,8 +21,27 @@ import numpy as np
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.suites import PRO_SUITES, TaskSpec, base_suite_of, get_task
 
-FLOOR_STYLES = ("dark", "rustic", "light-gray", "white-marble", "wood-plank", "brown-ceramic", "gray-ceramic", "tile_grigia_caldera")
-WALL_STYLES = ("light-blue", "dark-blue", "dark-gray-plaster", "gray-plaster", "dark-green", "light-gray-plaster", "ceramic", "white", "yellow-linen")
+FLOOR_STYLES = (
+    "dark",
+    "rustic",
+    "light-gray",
+    "white-marble",
+    "wood-plank",
+    "brown-ceramic",
+    "gray-ceramic",
+    "tile_grigia_caldera",
+)
+WALL_STYLES = (
+    "light-blue",
+    "dark-blue",
+    "dark-gray-plaster",
+    "gray-plaster",
+    "dark-green",
+    "light-gray-plaster",
+    "ceramic",
+    "white",
+    "yellow-linen",
+)
 
 
 @dataclass
@@ -262,7 +283,10 @@ class EnvPerturbation(Perturbation):
 
     def plan(self, plan: BuildPlan) -> BuildPlan:
         rng = self.rng()
-        style = {"floor_style": FLOOR_STYLES[rng.integers(len(FLOOR_STYLES))], "wall_style": WALL_STYLES[rng.integers(len(WALL_STYLES))]}
+        style = {
+            "floor_style": FLOOR_STYLES[rng.integers(len(FLOOR_STYLES))],
+            "wall_style": WALL_STYLES[rng.integers(len(WALL_STYLES))],
+        }
         self._record.update(style)
         return BuildPlan(plan.task, plan.instruction, {**plan.env_kwargs, "scene_properties": style})
 
@@ -272,7 +296,8 @@ class EnvPerturbation(Perturbation):
         table_mats = {
             int(model.geom_matid[g])
             for g in range(model.ngeom)
-            if model.geom_matid[g] >= 0 and model.body(model.geom_bodyid[g]).name in ("table", "coffee_table", "study_table")
+            if model.geom_matid[g] >= 0
+            and model.body(model.geom_bodyid[g]).name in ("table", "coffee_table", "study_table")
         }
         for mat in table_mats:
             model.mat_rgba[mat, :3] = rgb

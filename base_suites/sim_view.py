@@ -5,6 +5,7 @@ goal predicates, region sites) is answered here, so no other package reaches int
 LIBERO internals. Geoms are mapped once to the scene entity they belong to (a task object, a fixture,
 the robot arm, the gripper, the table or the arena), so contact queries speak in task terms.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -302,7 +303,9 @@ class SimView:
                 continue
             mujoco.mj_contactForce(model, data, i, self._force)
             found.append(
-                Contact(ea, eb, model.geom(c.geom1).name, model.geom(c.geom2).name, float(abs(self._force[0])), tuple(c.pos))
+                Contact(
+                    ea, eb, model.geom(c.geom1).name, model.geom(c.geom2).name, float(abs(self._force[0])), tuple(c.pos)
+                )
             )
         return found
 

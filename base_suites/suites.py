@@ -3,6 +3,7 @@
 A task is addressed by (suite, index). Its BDDL file gives the instruction and goal predicates; the
 shipped init states (.npz) give the 50 starts every LIBERO evaluation uses.
 """
+
 from __future__ import annotations
 
 import functools
@@ -64,7 +65,7 @@ def list_suites() -> list[str]:
     return list(MAIN_SUITES + PRO_SUITES)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _benchmark(suite: str):
     if suite not in list_suites():
         raise unknown_choice("suite", suite, list_suites())
@@ -72,12 +73,12 @@ def _benchmark(suite: str):
     return quietly(bench.get_benchmark_dict()[suite])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _load_init_states(suite: str, index: int) -> np.ndarray:
     return np.asarray(quietly(_benchmark(suite).get_task_init_states, index))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def list_tasks(suite: str) -> list[TaskSpec]:
     """All tasks of a suite, in the suite's default order."""
     bench = _benchmark(suite)

@@ -5,6 +5,7 @@ a quality knob applied? `continuation_pairs` branches a clean and a knob rollout
 changes an action; `pair_preference` reports how often the clean continuation scores higher. Used by
 `critic_pairs.py`; it needs the simulator.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -15,8 +16,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from annotations import task_key
-from base_suites.experts import ScriptedExpert
 from base_suites.env import LiberoEnv
+from base_suites.experts import ScriptedExpert
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.seeds import derive_seed
 from critics.data import action_chunks
@@ -66,7 +67,9 @@ class Scorer(Protocol):
     def q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray: ...
 
 
-def _episode(env: LiberoEnv, expert: ScriptedExpert, init: int, reset_seed: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+def _episode(
+    env: LiberoEnv, expert: ScriptedExpert, init: int, reset_seed: int
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """(state, action) of every step of one expert episode from a given start, until the env ends it.
 
     The reset seed fixes the scene and the episode number (the init index) fixes the expert's RNG, so a
@@ -86,8 +89,9 @@ def _continuation(steps: Sequence[tuple[np.ndarray, np.ndarray]]) -> Continuatio
     return Continuation(np.array([s for s, _ in steps]), np.array([a for _, a in steps]))
 
 
-def _branch(clean_actions: Sequence[np.ndarray], knob_steps: Iterator[tuple[np.ndarray, np.ndarray]],
-            window: int) -> tuple[int, list[tuple[np.ndarray, np.ndarray]]] | None:
+def _branch(
+    clean_actions: Sequence[np.ndarray], knob_steps: Iterator[tuple[np.ndarray, np.ndarray]], window: int
+) -> tuple[int, list[tuple[np.ndarray, np.ndarray]]] | None:
     """Follow the knob episode to its first action that differs from the clean one (t*) and keep its
     steps t*..t*+window-1; None if it never differs (the knob did not act before the episode ended)."""
     for t, (clean_action, (state, action)) in enumerate(zip(clean_actions, knob_steps)):
@@ -108,8 +112,15 @@ def _check_pair_inputs(knobs: Sequence[str], inits: Sequence[int], window: int) 
         raise UserInputError(f"continuation_pairs: window must be >= 1 step, got {window}")
 
 
-def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits: Sequence[int], seed: int,
-                       window: int = 25, max_steps: int | None = None) -> PairList:
+def continuation_pairs(
+    suite: str,
+    task: int | str,
+    knobs: Sequence[str],
+    inits: Sequence[int],
+    seed: int,
+    window: int = 25,
+    max_steps: int | None = None,
+) -> PairList:
     """Clean-vs-knob continuation pairs of the scripted expert on one task.
 
     For each init state and knob, runs the clean expert and the expert with that knob always on (same
@@ -137,7 +148,9 @@ def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits:
                     skipped[knob] += 1
                     continue
                 t, knob_steps = branched
-                pairs.append(Pair(key, int(init), knob, t, _continuation(clean_steps[t: t + window]), _continuation(knob_steps)))
+                pairs.append(
+                    Pair(key, int(init), knob, t, _continuation(clean_steps[t : t + window]), _continuation(knob_steps))
+                )
         return PairList(pairs, env.metadata, skipped)
     finally:
         env.close()
@@ -145,7 +158,13 @@ def continuation_pairs(suite: str, task: int | str, knobs: Sequence[str], inits:
 
 def _side_score(critic: Scorer, side: Continuation, steps: int) -> float:
     """Mean Q over a side's first `steps` steps: how good the critic finds that stretch of behaviour."""
-    return float(np.mean(critic.q(side.states[:steps], action_chunks(side.actions, getattr(critic, "chunk", 1))[:steps, None, :])[:, 0]))
+    return float(
+        np.mean(
+            critic.q(side.states[:steps], action_chunks(side.actions, getattr(critic, "chunk", 1))[:steps, None, :])[
+                :, 0
+            ]
+        )
+    )
 
 
 def _gap(critic: Scorer, pair: Pair) -> float:
@@ -168,7 +187,8 @@ def _preference_summary(gaps: np.ndarray) -> dict[str, Any]:
 def pair_preference(critic: Scorer, pairs: Sequence[Pair]) -> dict[str, Any]:
     """How often Q prefers the clean continuation to the knob one from the same state.
 
-    A side's score is the mean Q of its steps (both sides over the length of the shorter); the clean side wins a pair only when it scores strictly
+    A side's score is the mean Q of its steps (both sides over the length of the shorter); the clean side wins a pair
+    only when it scores strictly
     higher (a tie is no preference). A critic that has learnt elegance should prefer what the clean
     expert did; issue 5 asks for >= 80% of pairs. Returns pairs, clean_wins, clean_preferred (the
     fraction; None without pairs), mean_gap (clean minus knob score), and the same per knob.

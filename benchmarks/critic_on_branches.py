@@ -10,13 +10,15 @@ One JSON object per critic.
 
     python benchmarks/critic_on_branches.py headroom.json CRITIC_DIR [CRITIC_DIR ...] [--trust-radius 0.3]
 """
+
 from __future__ import annotations
 
 import argparse
 import json
 
-from base_suites.runtime.io import read_json_file
 from headroom import rescore_headroom
+
+from base_suites.runtime.io import read_json_file
 
 
 def main() -> None:

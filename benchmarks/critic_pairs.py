@@ -8,6 +8,7 @@ higher in >= 80% of pairs. Prints a per-knob table, then one JSON object on its 
     python benchmarks/critic_pairs.py CRITIC_DIR --suite libero_object --task 0 [--knobs drop,tilt,misplace,collide]
         [--inits 0,1,2] [--window 25] [--seed 0] [--max-steps T]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -15,6 +16,7 @@ import json
 import time
 
 from continuation_pairs import continuation_pairs, pair_preference
+
 from critics import load
 
 TARGET = 0.8
@@ -55,7 +57,9 @@ def main() -> dict:
 
     critic = load(args.critic)
     start = time.perf_counter()
-    pairs = continuation_pairs(args.suite, task, knobs, args.inits, args.seed, window=args.window, max_steps=args.max_steps)
+    pairs = continuation_pairs(
+        args.suite, task, knobs, args.inits, args.seed, window=args.window, max_steps=args.max_steps
+    )
     report = pair_preference(critic.bind(pairs.metadata), pairs)
     print(_table(report["per_knob"], pairs.skipped), flush=True)
     result = {

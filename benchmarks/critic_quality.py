@@ -1,7 +1,8 @@
 """Held-out quality of the elegance critic: train on annotated files, rank the actions of others.
 
 Trains a Cal-QL critic on the TRAIN files (annotated HDF5, e.g. scripted-expert demos labelled by
-`elegant annotate`), then reports `critics.evaluate_critic` on the HELDOUT files: the AUROC of Q separating dataset actions
+`elegant annotate`), then reports `critics.evaluate_critic` on the HELDOUT files: the AUROC of Q separating dataset
+actions
 in elegant 25-frame segments from those in segments that violate a criterion, overall and per criterion.
 With --reference it also fits a network of the critic's size by plain regression on the training
 demos' discounted returns (Monte Carlo, the same gamma and reward) and evaluates it the same way: what
@@ -9,8 +10,10 @@ the data supports for ranking held-out actions, without any offline-RL machinery
 reference is limited by its data, not by Cal-QL.
 Last line: one JSON object {"train": training summary, "heldout": evaluation[, "reference": evaluation]}.
 
-    python benchmarks/critic_quality.py TRAIN.hdf5 [TRAIN2.hdf5 ...] --heldout HELDOUT.hdf5 [...] [--steps 20000] [--out DIR]
+    python benchmarks/critic_quality.py TRAIN.hdf5 [TRAIN2.hdf5 ...] --heldout HELDOUT.hdf5 [...] [--steps 20000]
+    [--out DIR]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,11 +23,21 @@ import tempfile
 import torch
 from torchrl.objectives.value.functional import reward2go
 
-from critics import BACKUPS, REWARDS, Critic, TwinQNetwork, evaluate_critic, load_transitions, make_replay_buffer, train_critic
+from critics import (
+    BACKUPS,
+    REWARDS,
+    Critic,
+    TwinQNetwork,
+    evaluate_critic,
+    load_transitions,
+    make_replay_buffer,
+    train_critic,
+)
 
 
-def mc_regression_reference(paths: list[str], gamma: float | None, reward: str, steps: int, batch_size: int,
-                            hidden: list[int], seed: int) -> Critic:
+def mc_regression_reference(
+    paths: list[str], gamma: float | None, reward: str, steps: int, batch_size: int, hidden: list[int], seed: int
+) -> Critic:
     """A one-critic `TwinQNetwork` regressed onto the discounted return of each (state, action) of the
     demos, wrapped as a run-time `Critic`. Demos cut off without success keep their return as it is (the
     Cal-QL floor leaves those out; a regression needs a target for every transition)."""
@@ -55,23 +68,41 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
     parser.add_argument("--cql-weight", type=float, default=5.0)
-    parser.add_argument("--reward", choices=REWARDS, default="step", help="violation penalty per step or per 25-frame window")
-    parser.add_argument("--backup", choices=BACKUPS, default="policy", help="the TD target's next action (see CalQLLoss)")
+    parser.add_argument(
+        "--reward", choices=REWARDS, default="step", help="violation penalty per step or per 25-frame window"
+    )
+    parser.add_argument(
+        "--backup", choices=BACKUPS, default="policy", help="the TD target's next action (see CalQLLoss)"
+    )
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--out", help="critic directory to keep (default: a temporary one)")
     parser.add_argument("--no-progress", action="store_true")
-    parser.add_argument("--reference", action="store_true", help="also evaluate a plain regression on Monte-Carlo returns")
+    parser.add_argument(
+        "--reference", action="store_true", help="also evaluate a plain regression on Monte-Carlo returns"
+    )
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
     with tempfile.TemporaryDirectory(prefix="critic_quality_") as tmp:
         out = args.out or tmp
-        summary = train_critic(args.train, out, steps=args.steps, batch_size=args.batch_size, hidden=args.hidden,
-                               seed=args.seed, gamma=args.gamma, cql_weight=args.cql_weight, reward=args.reward,
-                               backup=args.backup, progress=not args.no_progress)
+        summary = train_critic(
+            args.train,
+            out,
+            steps=args.steps,
+            batch_size=args.batch_size,
+            hidden=args.hidden,
+            seed=args.seed,
+            gamma=args.gamma,
+            cql_weight=args.cql_weight,
+            reward=args.reward,
+            backup=args.backup,
+            progress=not args.no_progress,
+        )
         result = {"train": summary, "heldout": evaluate_critic(out, args.heldout)}
     if args.reference:
-        reference = mc_regression_reference(args.train, args.gamma, args.reward, args.steps, args.batch_size, args.hidden, args.seed)
+        reference = mc_regression_reference(
+            args.train, args.gamma, args.reward, args.steps, args.batch_size, args.hidden, args.seed
+        )
         result["reference"] = evaluate_critic(reference, args.heldout)
     print(json.dumps(result))
 

@@ -6,7 +6,7 @@ Measures, in one run and on the same data, networks and thread count:
   * our step's FLOPs (counted by dispatching every op through torch's FLOP formulas) times steps/s, as
     a fraction of this CPU's float32 matmul throughput (a square sgemm, measured here); target >= 60%;
   * `Critic.q` latency for 1 state x 16 actions on one thread (median); target <= 150 us; for reference,
-    the bare module forward on ready tensors (what DESIGN.md's "~80 us as a plain nn.Module" measured).
+    the bare module forward on ready tensors (about 80 us as a plain nn.Module when first measured).
 The machine may be shared: every figure is taken over interleaved rounds, and both the best round
 (the machine's capability) and the median are reported; ratios compare the same statistic. Targets are
 judged on medians.
@@ -14,6 +14,7 @@ Last line: one JSON object with the figures.
 
     python benchmarks/critic_speed.py [--rounds 8] [--steps 3] [--threads 1]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,26 +59,35 @@ def random_transitions(n: int, obs_dim: int, seed: int) -> TensorDict:
     """Transitions in the layout of `critics.data` (normalised observations, actions in [-1, 1])."""
     g = torch.Generator().manual_seed(seed)
     done = torch.rand(n, 1, generator=g) < 0.01
-    return TensorDict({
-        "observation": torch.randn(n, obs_dim, generator=g),
-        "action": torch.rand(n, ACTION_DIM, generator=g) * 2 - 1,
-        "mc_return": torch.rand(n, 1, generator=g) * 20,
-        "next": {
+    return TensorDict(
+        {
             "observation": torch.randn(n, obs_dim, generator=g),
-            "reward": (torch.rand(n, 1, generator=g) < 0.8).float(),
-            "done": done,
-            "terminated": done,
+            "action": torch.rand(n, ACTION_DIM, generator=g) * 2 - 1,
+            "mc_return": torch.rand(n, 1, generator=g) * 20,
+            "next": {
+                "observation": torch.randn(n, obs_dim, generator=g),
+                "reward": (torch.rand(n, 1, generator=g) < 0.8).float(),
+                "done": done,
+                "terminated": done,
+            },
         },
-    }, batch_size=[n])
+        batch_size=[n],
+    )
 
 
 def stock_loss(obs_dim: int, hidden: list[int], n_actions: int) -> CQLLoss:
     actor = ProbabilisticActor(
-        TensorDictModule(TanhGaussianActor(obs_dim, ACTION_DIM, hidden), in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"], distribution_class=TanhNormal, spec=Bounded(-1.0, 1.0, (ACTION_DIM,)),
+        TensorDictModule(
+            TanhGaussianActor(obs_dim, ACTION_DIM, hidden), in_keys=["observation"], out_keys=["loc", "scale"]
+        ),
+        in_keys=["loc", "scale"],
+        distribution_class=TanhNormal,
+        spec=Bounded(-1.0, 1.0, (ACTION_DIM,)),
     )
-    qvalue = ValueOperator(MLP(in_features=obs_dim + ACTION_DIM, out_features=1, num_cells=hidden, activation_class=torch.nn.ReLU),
-                           in_keys=["observation", "action"])
+    qvalue = ValueOperator(
+        MLP(in_features=obs_dim + ACTION_DIM, out_features=1, num_cells=hidden, activation_class=torch.nn.ReLU),
+        in_keys=["observation", "action"],
+    )
     loss = CQLLoss(actor, qvalue, num_random=n_actions)
     loss.make_value_estimator(gamma=0.99)
     return loss
@@ -117,9 +127,12 @@ def q_latency(obs_dim: int, hidden: list[int], calls: int) -> dict[str, list[flo
     state_dim = obs_dim - 1
     encoder = TaskFeatureEncoder({"bench/0": [["state", state_dim]]})
     rng = np.random.default_rng(0)
-    normalization = Normalization.fit(rng.normal(size=(100, obs_dim)), rng.uniform(-1, 1, size=(100, ACTION_DIM)), state_dim)
+    normalization = Normalization.fit(
+        rng.normal(size=(100, obs_dim)), rng.uniform(-1, 1, size=(100, ACTION_DIM)), state_dim
+    )
     critic = Critic(TwinQNetwork(obs_dim, ACTION_DIM, hidden), encoder, normalization).bind(
-        {"suite": "bench", "task_index": 0, "state_layout": [["state", state_dim]]})
+        {"suite": "bench", "task_index": 0, "state_layout": [["state", state_dim]]}
+    )
     state, actions = rng.normal(size=state_dim), rng.uniform(-1, 1, size=(16, ACTION_DIM))
     obs, candidates = torch.randn(1, obs_dim), torch.rand(1, 16, ACTION_DIM)
 
@@ -150,7 +163,9 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--n-actions", type=int, default=10)
     parser.add_argument("--hidden", type=int, nargs="+", default=[256, 256])
-    parser.add_argument("--obs-dim", type=int, default=82, help="encoded observation width (e.g. 72 state dims + 10 tasks)")
+    parser.add_argument(
+        "--obs-dim", type=int, default=82, help="encoded observation width (e.g. 72 state dims + 10 tasks)"
+    )
     parser.add_argument("--rounds", type=int, default=8)
     parser.add_argument("--steps", type=int, default=3, help="gradient steps per round and loss")
     parser.add_argument("--threads", type=int, default=1)
@@ -161,11 +176,16 @@ def main() -> None:
     torch.manual_seed(args.seed)
 
     data = random_transitions(20_000, args.obs_dim, args.seed)
-    ours = CalQLLoss(TanhGaussianActor(args.obs_dim, ACTION_DIM, args.hidden), TwinQNetwork(args.obs_dim, ACTION_DIM, args.hidden),
-                     n_actions=args.n_actions)
+    ours = CalQLLoss(
+        TanhGaussianActor(args.obs_dim, ACTION_DIM, args.hidden),
+        TwinQNetwork(args.obs_dim, ACTION_DIM, args.hidden),
+        n_actions=args.n_actions,
+    )
     stock = stock_loss(args.obs_dim, args.hidden, args.n_actions)
-    steps = {name: gradient_step(loss, make_replay_buffer(data, args.batch, torch.Generator().manual_seed(args.seed)))
-             for name, loss in (("ours", ours), ("stock", stock))}
+    steps = {
+        name: gradient_step(loss, make_replay_buffer(data, args.batch, torch.Generator().manual_seed(args.seed)))
+        for name, loss in (("ours", ours), ("stock", stock))
+    }
     flops = {}
     for name, step in steps.items():
         step()  # warm-up (allocations, lazy initialisation)

@@ -3,6 +3,7 @@
 Target: wrapped low-dim steps/s >= 0.9x raw. Also reset time and rgb (agentview 128x128) steps/s.
 Prints one JSON object on its last line.  Usage: python benchmarks/env_throughput.py [--steps 300]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,8 +33,13 @@ def main() -> dict:
     actions = np.random.default_rng(0).uniform(-0.3, 0.3, size=(args.steps, 7))
     task = get_task(args.suite, args.task)
     raw = libero_modules()["env_wrapper"].ControlEnv(
-        bddl_file_name=task.bddl_file, use_camera_obs=False, has_offscreen_renderer=False,
-        camera_names=[], hard_reset=False, ignore_done=True, horizon=10**9,
+        bddl_file_name=task.bddl_file,
+        use_camera_obs=False,
+        has_offscreen_renderer=False,
+        camera_names=[],
+        hard_reset=False,
+        ignore_done=True,
+        horizon=10**9,
     )
     init = task.load_init_states()[0]
     wrapped = make_env(args.suite, args.task, init_state=0, max_steps=10**9)

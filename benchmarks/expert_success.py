@@ -4,6 +4,7 @@ Target (clean execution): >= 90% per suite over the 50 init states, >= 70% on ev
 Usage: python benchmarks/expert_success.py --suites libero_object,libero_spatial [--inits 50] [--quality clean]
 Prints a table per task, then one JSON object on its last line.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,7 +34,13 @@ def run_task(suite: str, index: int, inits: int, quality, seed: int) -> dict:
         successes.append(bool(info["success"]))
     env.close()
     seconds = time.perf_counter() - start
-    return {"task": f"{suite}/{index}", "success": float(np.mean(successes)), "episodes": inits, "seconds": seconds, "steps": steps}
+    return {
+        "task": f"{suite}/{index}",
+        "success": float(np.mean(successes)),
+        "episodes": inits,
+        "seconds": seconds,
+        "steps": steps,
+    }
 
 
 def main() -> dict:
@@ -51,7 +58,10 @@ def main() -> dict:
         for index in indices:
             row = run_task(suite, index, args.inits, quality, args.seed)
             rows.append(row)
-            print(f"{row['task']:22s} success {row['success']:6.1%}  ({row['episodes']} eps, {row['seconds']:.0f} s)", flush=True)
+            print(
+                f"{row['task']:22s} success {row['success']:6.1%}  ({row['episodes']} eps, {row['seconds']:.0f} s)",
+                flush=True,
+            )
     per_suite = {}
     for row in rows:
         per_suite.setdefault(row["task"].split("/")[0], []).append(row["success"])

@@ -24,25 +24,37 @@ did not (`outcome_auroc`, 0.5 = chance, with its standard error over the points,
 `rescore_headroom` recomputes all of it for another critic
 from the stored states and candidates.
 """
+
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from base_suites import get_task, make_env
 from base_suites.runtime.errors import UserInputError
-from elegant.evaluation.runner import open_critic, open_policy, episode_start
-from elegant.intervention.jiti import check_critic_chunk, choose_candidate, decide, draw_candidates, eligible_candidates, plan_distance
+from elegant.evaluation.runner import episode_start, open_critic, open_policy
+from elegant.intervention.jiti import check_critic_chunk, decide, draw_candidates, plan_distance
+from elegant.intervention.selectors import choose_candidate, eligible_candidates
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import chunk_of
 from elegant.reporting.report import save_figure
 
 
-def _rollout(env, monitor, policy, chunk: int, init_index: int, reset_seed: int, prefix: Sequence[np.ndarray],
-             stop_on_violation: bool, at_decision: Callable[[int, dict, np.ndarray], None] | None = None) -> tuple[list[np.ndarray], bool]:
+def _rollout(
+    env,
+    monitor,
+    policy,
+    chunk: int,
+    init_index: int,
+    reset_seed: int,
+    prefix: Sequence[np.ndarray],
+    stop_on_violation: bool,
+    at_decision: Callable[[int, dict, np.ndarray], None] | None = None,
+) -> tuple[list[np.ndarray], bool]:
     """Episode from the given start: `prefix` actions first, then the policy's. Returns the executed
     actions and whether the episode was an elegant success. `at_decision(t, obs, base_plan)` sees each of
     the policy's decisions (the policy decides or observes at every step, prefix included, so its history
@@ -74,8 +86,9 @@ def _rollout(env, monitor, policy, chunk: int, init_index: int, reset_seed: int,
     return actions, bool(monitor.verdict(bool(info["success"])).elegant)
 
 
-def branch_episode(env, monitor, policy, critic, init_index: int, reset_seed: int, *, every: int, first: int,
-                   n_candidates: int) -> dict[str, Any]:
+def branch_episode(
+    env, monitor, policy, critic, init_index: int, reset_seed: int, *, every: int, first: int, n_candidates: int
+) -> dict[str, Any]:
     """One start: the base episode's outcome and, per decision point, the state, the candidate plans, each
     candidate's Q, distance from the base plan (`plan_distance`) and elegant-success outcome (candidate 0's
     is the base episode's). The states and candidates let `rescore_headroom` judge another critic on the
@@ -96,9 +109,23 @@ def branch_episode(env, monitor, policy, critic, init_index: int, reset_seed: in
             _rollout(env, monitor, policy, chunk, init_index, reset_seed, [*actions[:t], *candidates[k]], True)[1]
             for k in range(1, len(candidates))
         ]
-        points.append({"step": t, "q": _scores(critic, state, candidates), "distance": plan_distance(candidates).round(4).tolist(),
-                       "elegant": outcomes, "state": state.tolist(), "candidates": np.asarray(candidates).tolist()})
-    return {"init_index": init_index, "reset_seed": reset_seed, "steps": len(actions), "base_elegant": base_elegant, "points": points}
+        points.append(
+            {
+                "step": t,
+                "q": _scores(critic, state, candidates),
+                "distance": plan_distance(candidates).round(4).tolist(),
+                "elegant": outcomes,
+                "state": state.tolist(),
+                "candidates": np.asarray(candidates).tolist(),
+            }
+        )
+    return {
+        "init_index": init_index,
+        "reset_seed": reset_seed,
+        "steps": len(actions),
+        "base_elegant": base_elegant,
+        "points": points,
+    }
 
 
 def _scores(critic, state: np.ndarray, candidates: np.ndarray) -> list[float]:
@@ -112,7 +139,10 @@ def rescore_headroom(result: Mapping[str, Any], critic: Any, trust_radius: float
     state and candidates, the outcomes kept. Seconds instead of the hours of branching, so critics can be
     compared on the decisions that matter, with the simulator's own verdicts as ground truth."""
     if "suite" not in result or any("candidates" not in p for e in result["episodes"] for p in e["points"]):
-        raise UserInputError("rescore: this headroom result stores no states and candidates (it was written before they were kept); branch again")
+        raise UserInputError(
+            "rescore: this headroom result stores no states and candidates (it was written before they were kept); "
+            "branch again"
+        )
     scorer = open_critic(critic)
     check_critic_chunk(scorer, result["chunk"])
     env = make_env(result["suite"], get_task(result["suite"], result["task"]).index, seed=0)
@@ -120,8 +150,15 @@ def rescore_headroom(result: Mapping[str, Any], critic: Any, trust_radius: float
         scorer.bind(env.metadata)
     finally:
         env.close()
-    episodes = [{**e, "points": [{**p, "q": _scores(scorer, np.asarray(p["state"]), np.asarray(p["candidates"]))} for p in e["points"]]}
-                for e in result["episodes"]]
+    episodes = [
+        {
+            **e,
+            "points": [
+                {**p, "q": _scores(scorer, np.asarray(p["state"]), np.asarray(p["candidates"]))} for p in e["points"]
+            ],
+        }
+        for e in result["episodes"]
+    ]
     return {**result, "episodes": episodes, "summary": summarize_headroom(episodes, trust_radius)}
 
 
@@ -198,11 +235,17 @@ def intervention_headroom(
     from itc import ITCMonitor
 
     if not episodes or min(episodes) < 0 or every < 1 or first < 0 or n_candidates < 2:
-        raise UserInputError(f"headroom needs episode indices >= 0, every >= 1, first >= 0, n_candidates >= 2; got {list(episodes)}, {every}, {first}, {n_candidates}")
+        raise UserInputError(
+            f"headroom needs episode indices >= 0, every >= 1, first >= 0, n_candidates >= 2; got {list(episodes)}, "
+            f"{every}, {first}, {n_candidates}"
+        )
     base = as_policy(open_policy(policy), seed=seed)
     chunk = chunk_of(base)
     if every % chunk or first % chunk:
-        raise UserInputError(f"headroom: the policy decides every {chunk} steps, so every ({every}) and first ({first}) must be multiples of {chunk}")
+        raise UserInputError(
+            f"headroom: the policy decides every {chunk} steps, so every ({every}) and first ({first}) must be "
+            f"multiples of {chunk}"
+        )
     scorer = open_critic(critic)
     check_critic_chunk(scorer, chunk)
     spec = get_task(suite, task)
@@ -213,10 +256,28 @@ def intervention_headroom(
         results = []
         for episode in tqdm(list(episodes), desc=f"headroom {suite}/{spec.index}", unit="ep", disable=not progress):
             init_index, reset_seed = episode_start(seed, suite, spec.index, episode, spec.n_init_states, init_states)
-            results.append(branch_episode(env, monitor, base, scorer, init_index, reset_seed, every=every, first=first, n_candidates=n_candidates))
+            results.append(
+                branch_episode(
+                    env,
+                    monitor,
+                    base,
+                    scorer,
+                    init_index,
+                    reset_seed,
+                    every=every,
+                    first=first,
+                    n_candidates=n_candidates,
+                )
+            )
     finally:
         env.close()
-    return {"suite": suite, "task": spec.index, "chunk": chunk, "summary": summarize_headroom(results, trust_radius), "episodes": results}
+    return {
+        "suite": suite,
+        "task": spec.index,
+        "chunk": chunk,
+        "summary": summarize_headroom(results, trust_radius),
+        "episodes": results,
+    }
 
 
 _ELEGANT, _ELEGANT_FAR = (0.20, 0.65, 0.30), (0.70, 0.88, 0.72)
@@ -245,15 +306,24 @@ def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: P
             column = np.argsort(order)  # candidate k is drawn in column[k]
             near = eligible_candidates(distance, trust_radius)
             for col, k in enumerate(order):
-                image[row, col] = (_ELEGANT if near[k] else _ELEGANT_FAR) if point["elegant"][k] else (_PLAIN if near[k] else _PLAIN_FAR)
+                image[row, col] = (
+                    (_ELEGANT if near[k] else _ELEGANT_FAR)
+                    if point["elegant"][k]
+                    else (_PLAIN if near[k] else _PLAIN_FAR)
+                )
             ax.scatter([column[0]], [row], marker="s", s=60, facecolors="none", edgecolors="black", lw=1)
             ax.scatter([column[choose_candidate(q, distance, trust_radius)]], [row], marker="o", s=10, color="tab:red")
         ax.imshow(image, aspect="auto", interpolation="nearest")
         ax.set_yticks(range(len(episode["points"])), [str(p["step"]) for p in episode["points"]], fontsize=7)
         ax.set_xticks([0, n_cand - 1], ["best Q", "worst Q"], fontsize=7)
-        ax.set_title(f"init {episode['init_index']}: base {'elegant' if episode['base_elegant'] else 'not elegant'}", fontsize=8)
+        ax.set_title(
+            f"init {episode['init_index']}: base {'elegant' if episode['base_elegant'] else 'not elegant'}", fontsize=8
+        )
         if i == 0:
             ax.set_ylabel("decision step")
-    fig.suptitle("candidates by critic rank: green = elegant success when executed (pale: outside trust radius); "
-                 "box = base action, dot = critic's choice", fontsize=8)
+    fig.suptitle(
+        "candidates by critic rank: green = elegant success when executed (pale: outside trust radius); "
+        "box = base action, dot = critic's choice",
+        fontsize=8,
+    )
     return save_figure(fig, path)

@@ -9,6 +9,7 @@ a shared machine.
 Prints one JSON object on its last line.
 Usage: python benchmarks/itc_cost.py [--suite libero_10 --task 0 --steps 250 --rounds 3]
 """
+
 from __future__ import annotations
 
 import argparse

@@ -5,11 +5,14 @@ candidates from the base policy is executed once and the base policy finishes th
 it prints one line per decision point, one character per candidate (candidate 0 = the base action):
 E elegant success, . not, with the critic's choice marked by brackets; then the summary (headroom,
 the critic's hit rate against a random eligible candidate, harm on elegant episodes) as one JSON object
-on the last line; with --out, the branches also go to that JSON and a PNG beside it. Costly: about N x (decision points) episodes per start.
+on the last line; with --out, the branches also go to that JSON and a PNG beside it. Costly: about N x (decision
+points) episodes per start.
 
-    python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0 [--episodes 4 | --episodes 1,10,12]
+    python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0 [--episodes 4 | --episodes
+    1,10,12]
         [--seed 3] [--every 15] [--first 10] [--candidates 16] [--trust-radius 0.3] [--out headroom.json]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -17,11 +20,11 @@ import json
 from pathlib import Path
 
 import numpy as np
+from headroom import intervention_headroom, plot_headroom
 
 from base_suites.runtime.io import atomic_write_json
 from elegant.cli import parse_indices
-from headroom import intervention_headroom, plot_headroom
-from elegant.intervention.jiti import choose_candidate
+from elegant.intervention.selectors import choose_candidate
 
 
 def _row(point: dict, trust_radius: float | None) -> str:
@@ -37,23 +40,41 @@ def main() -> None:
     parser.add_argument("critic")
     parser.add_argument("--suite", default="libero_object")
     parser.add_argument("--task", type=int, default=0)
-    parser.add_argument("--episodes", default="4", help="a count N (episodes 0..N-1) or comma-separated episode indices")
+    parser.add_argument(
+        "--episodes", default="4", help="a count N (episodes 0..N-1) or comma-separated episode indices"
+    )
     parser.add_argument("--seed", type=int, default=3, help="the evaluation seed whose starts are branched")
     parser.add_argument("--every", type=int, default=15)
     parser.add_argument("--first", type=int, default=10)
     parser.add_argument("--candidates", type=int, default=16)
     parser.add_argument("--trust-radius", type=float, default=0.3, help="<= 0 for none")
     parser.add_argument("--max-steps", type=int)
-    parser.add_argument("--init-states", help="as elegant eval --init-states: the subset the starts are drawn from, e.g. 25-49")
+    parser.add_argument(
+        "--init-states", help="as elegant eval --init-states: the subset the starts are drawn from, e.g. 25-49"
+    )
     parser.add_argument("--out", help="write every branch outcome here (JSON)")
     args = parser.parse_args()
     radius = args.trust_radius if args.trust_radius > 0 else None
     episodes = [int(e) for e in args.episodes.split(",")] if "," in args.episodes else list(range(int(args.episodes)))
-    result = intervention_headroom(args.suite, args.task, args.policy, args.critic, episodes=episodes, seed=args.seed,
-                                   every=args.every, first=args.first, n_candidates=args.candidates, trust_radius=radius,
-                                   max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"))
+    result = intervention_headroom(
+        args.suite,
+        args.task,
+        args.policy,
+        args.critic,
+        episodes=episodes,
+        seed=args.seed,
+        every=args.every,
+        first=args.first,
+        n_candidates=args.candidates,
+        trust_radius=radius,
+        max_steps=args.max_steps,
+        init_states=parse_indices(args.init_states, "--init-states"),
+    )
     for episode in result["episodes"]:
-        print(f"init {episode['init_index']}: base {'elegant success' if episode['base_elegant'] else 'not elegant'}, {episode['steps']} steps")
+        print(
+            f"init {episode['init_index']}: base {'elegant success' if episode['base_elegant'] else 'not elegant'}, "
+            f"{episode['steps']} steps"
+        )
         for point in episode["points"]:
             print(_row(point, radius))
     if args.out:

@@ -7,6 +7,7 @@ when --critic is given; otherwise a randomly initialised twin 256x256 Q network 
 through the same run-time `Critic` class (the timing does not depend on the weights), which the output says.
 Prints one JSON object on its last line.  Usage: python benchmarks/jiti_overhead.py [--steps 200]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,8 +33,12 @@ def random_critic(metadata: Mapping[str, Any], seed: int = 0):
 
     torch.manual_seed(seed)
     encoder = TaskFeatureEncoder({task_key(metadata["suite"], metadata["task_index"]): metadata["state_layout"]})
-    norm = Normalization(np.zeros(encoder.state_dim, np.float32), np.ones(encoder.state_dim, np.float32),
-                         -np.ones(7, np.float32), np.ones(7, np.float32))
+    norm = Normalization(
+        np.zeros(encoder.state_dim, np.float32),
+        np.ones(encoder.state_dim, np.float32),
+        -np.ones(7, np.float32),
+        np.ones(7, np.float32),
+    )
     return Critic(TwinQNetwork(encoder.dim, 7, hidden=(256, 256)), encoder, norm)
 
 
@@ -61,8 +66,12 @@ def measure(env, agent: JITI, steps: int, seed: int) -> dict[str, float]:
         if terminated or truncated:
             obs, _ = env.reset(seed=seed)
     decision = float(np.mean([d.time for d in agent.log]))
-    return {"decision_ms": 1e3 * decision, "env_step_ms": 1e3 * env_time / steps, "overhead": decision / (env_time / steps),
-            "interventions": agent.interventions}
+    return {
+        "decision_ms": 1e3 * decision,
+        "env_step_ms": 1e3 * env_time / steps,
+        "overhead": decision / (env_time / steps),
+        "interventions": agent.interventions,
+    }
 
 
 def main() -> dict[str, Any]:
@@ -71,7 +80,9 @@ def main() -> dict[str, Any]:
     parser.add_argument("--task", type=int, default=0)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--candidates", type=int, default=16)
-    parser.add_argument("--critic", default=None, help="a critic directory (critics.load); default: random network of the real size")
+    parser.add_argument(
+        "--critic", default=None, help="a critic directory (critics.load); default: random network of the real size"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     env = make_env(args.suite, args.task, seed=0, max_steps=10**6)

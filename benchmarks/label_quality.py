@@ -11,6 +11,7 @@ Usage:
   python benchmarks/label_quality.py --collect --suites libero_object,libero_goal --episodes 20 --out runs/labelq
 Prints the confusion table (knob x criterion violation rate) and one JSON object on its last line.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,7 +31,13 @@ EXPECTED = {
     "tilt": ("alignment",),
     "wrong_order": ("sequence",),
 }
-EVENT_PREFIX = {"collide": "collide", "drop": "drop", "misplace": "misplace", "tilt": "tilt", "wrong_order": "wrong_order"}
+EVENT_PREFIX = {
+    "collide": "collide",
+    "drop": "drop",
+    "misplace": "misplace",
+    "tilt": "tilt",
+    "wrong_order": "wrong_order",
+}
 
 
 def carried_out(knob: str, events: list[str]) -> bool:
@@ -53,14 +60,22 @@ def evaluate(paths: list[str]) -> dict:
                 for knob in knobs:
                     if carried_out(knob, events):
                         rows[knob].append(violated)
-    table = {k: {c: float(np.mean([r[c] for r in v])) if v else None for c in CRITERIA} | {"n": len(v)} for k, v in rows.items()}
+    table = {
+        k: {c: float(np.mean([r[c] for r in v])) if v else None for c in CRITERIA} | {"n": len(v)}
+        for k, v in rows.items()
+    }
     recall = {}
     for knob, criteria in EXPECTED.items():
         hits = [any(r[c] for c in criteria) for r in rows[knob]]
         recall[knob] = {"recall": float(np.mean(hits)) if hits else None, "n": len(hits)}
     clean = rows["none"]
     false_alarm = float(np.mean([any(r.values()) for r in clean])) if clean else None
-    return {"confusion": table, "recall": recall, "false_alarm_clean_success": false_alarm, "n_clean_success": len(clean)}
+    return {
+        "confusion": table,
+        "recall": recall,
+        "false_alarm_clean_success": false_alarm,
+        "n_clean_success": len(clean),
+    }
 
 
 def main() -> dict:
@@ -91,8 +106,12 @@ def main() -> dict:
     for knob, row in result["confusion"].items():
         cells = " ".join(f"{row[c]:13.2f}" if row[c] is not None else f"{'-':>13s}" for c in CRITERIA)
         print(f"{knob:12s} {row['n']:4d} {cells}")
-    out = {"benchmark": "label_quality", "files": paths, **result,
-           "targets": {"recall": 0.95, "false_alarm_clean_success": 0.05}}
+    out = {
+        "benchmark": "label_quality",
+        "files": paths,
+        **result,
+        "targets": {"recall": 0.95, "false_alarm_clean_success": 0.05},
+    }
     print(json.dumps(out))
     return out
 

@@ -11,6 +11,7 @@ reports `elegant rank-check`'s held-out advantage AUROC for each weight and seed
     python benchmarks/pairwise_ranker.py --train A.annotated.hdf5,B.annotated.hdf5 --test C.annotated.hdf5 \
         --policy policy/ [--pair-weights 0,1] [--seeds 0,1] [--steps 3000]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,13 +45,22 @@ def read_branches(path: str, chunk: int) -> list[Branch]:
     branches = []
     with DemoFile(path, require_labels=True) as f:
         for demo in f:
-            branches.append(Branch(int(demo.attrs["task_index"]), (int(demo.attrs["init_state_index"]), int(demo.attrs["reset_seed"])),
-                                   single_explored_step(demo, chunk, path), float(demo.attrs["elegant"]),
-                                   np.asarray(demo.obs), np.asarray(demo.actions)))
+            branches.append(
+                Branch(
+                    int(demo.attrs["task_index"]),
+                    (int(demo.attrs["init_state_index"]), int(demo.attrs["reset_seed"])),
+                    single_explored_step(demo, chunk, path),
+                    float(demo.attrs["elegant"]),
+                    np.asarray(demo.obs),
+                    np.asarray(demo.actions),
+                )
+            )
     return branches
 
 
-def rows_and_pairs(branches: list[Branch], chunk: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def rows_and_pairs(
+    branches: list[Branch], chunk: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(explored inputs, their elegance, pair inputs explored / plan, pair targets) of one task's branches.
     A pair is an explored branch and a sibling that executed the plan over the whole explored chunk, from
     the identical recorded state, with another outcome."""
@@ -62,19 +72,30 @@ def rows_and_pairs(branches: list[Branch], chunk: int) -> tuple[np.ndarray, np.n
         t = b.explored_at
         if t is None:
             continue
-        state, explored = b.obs[t], b.actions[t:t + chunk].reshape(-1)
+        state, explored = b.obs[t], b.actions[t : t + chunk].reshape(-1)
         inputs.append(np.concatenate([state, explored]))
         elegant.append(b.elegant)
         for sib in siblings[b.start]:
             planned_through = sib.explored_at if sib.explored_at is not None else len(sib.actions)
-            if sib is b or planned_through < t + chunk or sib.elegant == b.elegant or not np.array_equal(sib.obs[t], state):
+            if (
+                sib is b
+                or planned_through < t + chunk
+                or sib.elegant == b.elegant
+                or not np.array_equal(sib.obs[t], state)
+            ):
                 continue
             pair_explored.append(inputs[-1])
-            pair_plan.append(np.concatenate([state, sib.actions[t:t + chunk].reshape(-1)]))
+            pair_plan.append(np.concatenate([state, sib.actions[t : t + chunk].reshape(-1)]))
             pair_target.append(float(b.elegant > sib.elegant))
     width = len(inputs[0])
     as_array = lambda rows: np.array(rows, dtype=np.float32).reshape(-1, width)  # noqa: E731
-    return as_array(inputs), np.array(elegant, dtype=np.float32), as_array(pair_explored), as_array(pair_plan), np.array(pair_target, dtype=np.float32)
+    return (
+        as_array(inputs),
+        np.array(elegant, dtype=np.float32),
+        as_array(pair_explored),
+        as_array(pair_plan),
+        np.array(pair_target, dtype=np.float32),
+    )
 
 
 class Ranker:
@@ -83,7 +104,7 @@ class Ranker:
     def __init__(self, models: dict[int, tuple[torch.nn.Module, np.ndarray, np.ndarray]], chunk: int) -> None:
         self.models, self.chunk, self._bound = models, chunk, None
 
-    def bind(self, metadata: dict[str, Any]) -> "Ranker":
+    def bind(self, metadata: dict[str, Any]) -> Ranker:
         self._bound = self.models[int(metadata["task_index"])]
         return self
 
@@ -94,13 +115,21 @@ class Ranker:
             return net(torch.as_tensor((x - mean) / std, dtype=torch.float32)).squeeze(-1).numpy()
 
 
-def fit(data: tuple[np.ndarray, ...], pair_weight: float, seed: int, steps: int) -> tuple[torch.nn.Module, np.ndarray, np.ndarray]:
+def fit(
+    data: tuple[np.ndarray, ...], pair_weight: float, seed: int, steps: int
+) -> tuple[torch.nn.Module, np.ndarray, np.ndarray]:
     """A 64x64 network (AdamW, weight decay 0.1, batches of 256) on one task's rows and, weighted, its pairs."""
     inputs, elegant, pair_explored, pair_plan, pair_target = data
     torch.manual_seed(seed)
     mean, std = inputs.mean(0), inputs.std(0) + 1e-3
     scaled = lambda x: torch.as_tensor((x - mean) / std, dtype=torch.float32)  # noqa: E731
-    net = torch.nn.Sequential(torch.nn.Linear(inputs.shape[1], 64), torch.nn.ReLU(), torch.nn.Linear(64, 64), torch.nn.ReLU(), torch.nn.Linear(64, 1))
+    net = torch.nn.Sequential(
+        torch.nn.Linear(inputs.shape[1], 64),
+        torch.nn.ReLU(),
+        torch.nn.Linear(64, 64),
+        torch.nn.ReLU(),
+        torch.nn.Linear(64, 1),
+    )
     opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=0.1)
     x, y = scaled(inputs), torch.as_tensor(elegant)
     px, pp, py = scaled(pair_explored), scaled(pair_plan), torch.as_tensor(pair_target)
@@ -130,7 +159,10 @@ def main() -> None:
     policy = as_policy(open_policy(args.policy), seed=0)
     chunk = chunk_of(policy)
     branches = [b for path in args.train.split(",") for b in read_branches(path, chunk)]
-    per_task = {task: rows_and_pairs([b for b in branches if b.task == task], chunk) for task in sorted({b.task for b in branches})}
+    per_task = {
+        task: rows_and_pairs([b for b in branches if b.task == task], chunk)
+        for task in sorted({b.task for b in branches})
+    }
     for task, data in per_task.items():
         print(json.dumps({"task": task, "explored_rows": len(data[0]), "pairs": len(data[4])}), flush=True)
     means = {}
@@ -138,8 +170,19 @@ def main() -> None:
         runs = []
         for seed in (int(s) for s in args.seeds.split(",")):
             ranker = Ranker({task: fit(data, weight, seed, args.steps) for task, data in per_task.items()}, chunk)
-            runs.append({path: branch_ranking(path, policy, ranker)["all"]["advantage_auroc"] for path in args.test.split(",")})
-            print(json.dumps({"pair_weight": weight, "seed": seed, "advantage_auroc": {k: round(v, 3) for k, v in runs[-1].items()}}), flush=True)
+            runs.append(
+                {path: branch_ranking(path, policy, ranker)["all"]["advantage_auroc"] for path in args.test.split(",")}
+            )
+            print(
+                json.dumps(
+                    {
+                        "pair_weight": weight,
+                        "seed": seed,
+                        "advantage_auroc": {k: round(v, 3) for k, v in runs[-1].items()},
+                    }
+                ),
+                flush=True,
+            )
         means[str(weight)] = {path: round(float(np.mean([r[path] for r in runs])), 3) for path in runs[0]}
     print(json.dumps({"mean_advantage_auroc_by_pair_weight": means}))
 

@@ -9,6 +9,7 @@ for 20 or more episodes (worker start-up, ~5 s, is paid once per run).
 
 Prints one JSON object on its last line.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,15 +48,36 @@ def main() -> None:
         for workers in (1, args.workers):
             files[workers] = str(Path(tmp) / f"demos_{workers}.hdf5")
             start = time.perf_counter()
-            collect_demos(args.suite, tasks, args.episodes, files[workers], quality="mixed", seed=args.seed, progress=False, workers=workers)
+            collect_demos(
+                args.suite,
+                tasks,
+                args.episodes,
+                files[workers],
+                quality="mixed",
+                seed=args.seed,
+                progress=False,
+                workers=workers,
+            )
             seconds[workers] = time.perf_counter() - start
         identical = same_episodes(files[1], files[args.workers])
     episodes = len(tasks) * args.episodes
-    print(f"{episodes} episodes: 1 worker {seconds[1]:.1f} s, {args.workers} workers {seconds[args.workers]:.1f} s, "
-          f"speedup {seconds[1] / seconds[args.workers]:.2f}x, identical files: {identical}")
-    print(json.dumps({"benchmark": "parallel_speedup", "episodes": episodes, "workers": args.workers,
-                      "serial_seconds": round(seconds[1], 2), "parallel_seconds": round(seconds[args.workers], 2),
-                      "speedup": round(seconds[1] / seconds[args.workers], 3), "identical": identical}))
+    print(
+        f"{episodes} episodes: 1 worker {seconds[1]:.1f} s, {args.workers} workers {seconds[args.workers]:.1f} s, "
+        f"speedup {seconds[1] / seconds[args.workers]:.2f}x, identical files: {identical}"
+    )
+    print(
+        json.dumps(
+            {
+                "benchmark": "parallel_speedup",
+                "episodes": episodes,
+                "workers": args.workers,
+                "serial_seconds": round(seconds[1], 2),
+                "parallel_seconds": round(seconds[args.workers], 2),
+                "speedup": round(seconds[1] / seconds[args.workers], 3),
+                "identical": identical,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -10,12 +10,14 @@ interruption). Every suite's demos train one policy, with the task as a one-hot 
 
 Prints the table per task and suite, then one JSON object on its last line.
 """
+
 from __future__ import annotations
 
 import argparse
 import json
 
 from chain_arguments import add_chain_arguments, chain_config
+
 from elegant.pipeline import run_chain
 
 TARGETS = {"suite_success": 0.70, "esr_gap": 0.10}
@@ -28,8 +30,10 @@ def verdicts(per_suite: dict[str, dict[str, float]]) -> dict[str, dict]:
             "success": row["success_rate"],
             "esr": row["esr"],
             "esr_gap": row["success_rate"] - row["esr"],
-            "meets": {"suite_success": row["success_rate"] >= TARGETS["suite_success"],
-                      "esr_gap": row["success_rate"] - row["esr"] >= TARGETS["esr_gap"]},
+            "meets": {
+                "suite_success": row["success_rate"] >= TARGETS["suite_success"],
+                "esr_gap": row["success_rate"] - row["esr"] >= TARGETS["esr_gap"],
+            },
         }
         for suite, row in per_suite.items()
     }
@@ -42,15 +46,27 @@ def main() -> None:
     config = chain_config(args, modes=("base",))
     result = run_chain(args.out, config, workers=args.workers)
     suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}
-    tasks = {suite: {task: {k: row[k] for k in ("success_rate", "esr", "episodes")} for task, row in modes["base"].items()}
-             for suite, modes in result["per_task"].items()}
+    tasks = {
+        suite: {task: {k: row[k] for k in ("success_rate", "esr", "episodes")} for task, row in modes["base"].items()}
+        for suite, modes in result["per_task"].items()
+    }
     print(f"{'task':22s} {'success':>8s} {'ESR':>6s}")
     for suite, rows in tasks.items():
         for task, row in rows.items():
             print(f"{task:22s} {row['success_rate']:8.1%} {row['esr']:6.1%}")
         print(f"{suite + ' (suite)':22s} {suites[suite]['success_rate']:8.1%} {suites[suite]['esr']:6.1%}")
-    print(json.dumps({"benchmark": "policy_quality", "config": vars(args), "per_suite": suites, "per_task": tasks,
-                      "verdicts": verdicts(suites), "targets": TARGETS}))
+    print(
+        json.dumps(
+            {
+                "benchmark": "policy_quality",
+                "config": vars(args),
+                "per_suite": suites,
+                "per_task": tasks,
+                "verdicts": verdicts(suites),
+                "targets": TARGETS,
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ not depend on what the weights learned. Also reports the bare network forward an
 of wrapping a trivial callable, for comparison. Prints one JSON object on its last line (ratio =
 median / target; <= 1 meets the target).  Usage: python benchmarks/policy_speed.py [--repeats 2000]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,13 +47,18 @@ def _write_dataset(path: str, layout: list[list], steps: int, seed: int) -> str:
         obs = rng.normal(size=(steps, width))
         actions = np.clip(rng.normal(0, 0.5, size=(steps, 7)), -1, 1)
         attrs = {"suite": "libero_object", "task_index": 0, "task_name": "synthetic", "success": True}
-        writer.append(Demo(f"demo_{d}", actions, np.zeros((steps, 1)), obs, obs, np.zeros(steps), np.eye(steps)[-1], attrs), state_layout=layout)
+        writer.append(
+            Demo(f"demo_{d}", actions, np.zeros((steps, 1)), obs, obs, np.zeros(steps), np.eye(steps)[-1], attrs),
+            state_layout=layout,
+        )
     return writer.finish()
 
 
 def main() -> dict:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--objects", type=int, default=7, help="objects in the synthetic scene (7 numbers of pose each)")
+    parser.add_argument(
+        "--objects", type=int, default=7, help="objects in the synthetic scene (7 numbers of pose each)"
+    )
     parser.add_argument("--repeats", type=int, default=2000)
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()

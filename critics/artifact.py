@@ -8,6 +8,7 @@ scores actions with the module's plain tensors under `torch.inference_mode`, wit
 because JITI calls it inside the control loop (target: <= 150 us for one state and 16 actions on one
 thread).
 """
+
 from __future__ import annotations
 
 import io
@@ -21,8 +22,8 @@ import torch
 from threadpoolctl import ThreadpoolController
 
 from annotations import TaskFeatureEncoder
-from base_suites.runtime.io import atomic_write, atomic_write_json, library_versions, read_artifact_config
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import atomic_write, atomic_write_json, library_versions, read_artifact_config
 from critics.networks import TwinQNetwork
 from critics.normalization import Normalization, clip_normalised_
 
@@ -163,7 +164,13 @@ class Critic:
         self._layers = _TwinLayers(
             width=network.action_weight.shape[-1],
             action_weight=_blas_operand(_side_by_side(network.action_weight)),
-            hidden=[[(_blas_operand(w[c]), b[c, 0].detach().numpy().astype(np.float32)) for w, b in zip(weights[:-1], biases[:-1])] for c in critics],
+            hidden=[
+                [
+                    (_blas_operand(w[c]), b[c, 0].detach().numpy().astype(np.float32))
+                    for w, b in zip(weights[:-1], biases[:-1])
+                ]
+                for c in critics
+            ],
             last_rows=[weights[-1][c, :, 0].detach().numpy().astype(np.float32) for c in critics],
             last_biases=[np.float32(biases[-1][c, 0, 0].item()) for c in critics],
         )
@@ -177,15 +184,21 @@ class Critic:
     def _binding_for(self, metadata: Mapping[str, Any]) -> _Binding:
         key = self.encoder.check_env(metadata, self.path)
         size = sum(s for _, s in self.encoder.layouts[key])
-        fixed = torch.from_numpy(self.normalization.observations(self.encoder.encode(np.zeros(size, dtype=np.float32), key)))[size:]
+        fixed = torch.from_numpy(
+            self.normalization.observations(self.encoder.encode(np.zeros(size, dtype=np.float32), key))
+        )[size:]
         obs_weight = self.network.obs_weight.detach()  # (C, D, H)
         bias = self.network.first_bias.detach()[:, 0, :] + torch.einsum("d,cdh->ch", fixed, obs_weight[:, size:, :])
         return _Binding(
-            key, size, self.normalization.obs_mean[:size].copy(), (1.0 / self.normalization.obs_std[:size]).astype(np.float32),
-            _blas_operand(_side_by_side(obs_weight[:, :size, :])), bias.reshape(-1).numpy().astype(np.float32),
+            key,
+            size,
+            self.normalization.obs_mean[:size].copy(),
+            (1.0 / self.normalization.obs_std[:size]).astype(np.float32),
+            _blas_operand(_side_by_side(obs_weight[:, :size, :])),
+            bias.reshape(-1).numpy().astype(np.float32),
         )
 
-    def bind(self, metadata: Mapping[str, Any]) -> "Critic":
+    def bind(self, metadata: Mapping[str, Any]) -> Critic:
         """Score states of the env described by `metadata` (suite, task_index, state_layout) from now on.
 
         Refuses (UserInputError) a task the critic was not trained on or a different observation layout.
@@ -209,11 +222,18 @@ class Critic:
         if single:
             state, actions = state[None], actions[None]
         width = len(self._center)
-        if state.ndim != 2 or state.shape[1] != b.state_size or actions.ndim != 3 or actions.shape[0] != state.shape[0] \
-                or actions.shape[2] != width:
+        if (
+            state.ndim != 2
+            or state.shape[1] != b.state_size
+            or actions.ndim != 3
+            or actions.shape[0] != state.shape[0]
+            or actions.shape[2] != width
+        ):
             raise UserInputError(
-                f"{self.path}: Critic.q expects state ({b.state_size},) with actions (N, {width}) or states (B, {b.state_size}) "
-                f"with actions (B, N, {width}) for task {b.task} (chunks of {self.chunk} actions); got {state.shape} and {actions.shape}"
+                f"{self.path}: Critic.q expects state ({b.state_size},) with actions (N, {width}) or states (B, "
+                f"{b.state_size}) "
+                f"with actions (B, N, {width}) for task {b.task} (chunks of {self.chunk} actions); got {state.shape} "
+                f"and {actions.shape}"
             )
         scaled = (actions - self._center) * self._inv_half
         np.minimum(np.maximum(scaled, -1.0, out=scaled), 1.0, out=scaled)  # np.clip costs 3x as much here
@@ -237,25 +257,36 @@ def save_critic(
 ) -> str:
     """Write critic.pt and critic.json into out_dir (each atomically; the weights first)."""
     os.makedirs(out_dir, exist_ok=True)
-    atomic_torch_save(os.path.join(out_dir, WEIGHTS_FILE), {k: v.detach().clone() for k, v in network.state_dict().items()})
-    atomic_write_json(os.path.join(out_dir, CONFIG_FILE), {
-        "format": CRITIC_FORMAT,
-        "network": network.config(),
-        "encoder": encoder.to_dict(),
-        "normalization": normalization.to_dict(),
-        "gamma": float(gamma),
-        "chunk": int(chunk),
-        "training": dict(training),
-        "versions": library_versions(),
-    })
+    atomic_torch_save(
+        os.path.join(out_dir, WEIGHTS_FILE), {k: v.detach().clone() for k, v in network.state_dict().items()}
+    )
+    atomic_write_json(
+        os.path.join(out_dir, CONFIG_FILE),
+        {
+            "format": CRITIC_FORMAT,
+            "network": network.config(),
+            "encoder": encoder.to_dict(),
+            "normalization": normalization.to_dict(),
+            "gamma": float(gamma),
+            "chunk": int(chunk),
+            "training": dict(training),
+            "versions": library_versions(),
+        },
+    )
     return out_dir
 
 
 def load(path: str | os.PathLike) -> Critic:
     """Load a critic directory written by `train_critic`; refuses a missing or corrupt one with one line."""
     path = str(path)
-    config = read_artifact_config(path, kind="critic", config_file=CONFIG_FILE, weights_file=WEIGHTS_FILE, fmt=CRITIC_FORMAT,
-                                  hint="train one with `elegant train-critic`")
+    config = read_artifact_config(
+        path,
+        kind="critic",
+        config_file=CONFIG_FILE,
+        weights_file=WEIGHTS_FILE,
+        fmt=CRITIC_FORMAT,
+        hint="train one with `elegant train-critic`",
+    )
     config_path, weights_path = os.path.join(path, CONFIG_FILE), os.path.join(path, WEIGHTS_FILE)
     try:
         network = TwinQNetwork(**config["network"])
@@ -265,11 +296,15 @@ def load(path: str | os.PathLike) -> Critic:
         raise UserInputError(f"{config_path}: missing or malformed field ({exc.__class__.__name__}: {exc})") from None
     chunk = config.get("chunk", 1)
     if network.action_dim != len(normalization.action_center) * chunk:
-        raise UserInputError(f"{config_path}: network.action_dim {network.action_dim} is not the action size "
-                             f"{len(normalization.action_center)} x chunk {chunk}")
+        raise UserInputError(
+            f"{config_path}: network.action_dim {network.action_dim} is not the action size "
+            f"{len(normalization.action_center)} x chunk {chunk}"
+        )
     try:
         state = torch.load(weights_path, map_location="cpu", weights_only=True)
         network.load_state_dict(state)
     except Exception as exc:  # torch raises many types for truncated/garbled files and mismatched shapes
-        raise UserInputError(f"{weights_path}: corrupt or incompatible critic weights ({exc.__class__.__name__})") from None
+        raise UserInputError(
+            f"{weights_path}: corrupt or incompatible critic weights ({exc.__class__.__name__})"
+        ) from None
     return Critic(network, encoder, normalization, config, path)

@@ -41,6 +41,7 @@ those transitions get no Cal-QL floor. The file's own `mc_return` (of the elegan
 gamma stored in the annotation attrs) is recomputed and checked first, so a file annotated with a
 different convention is refused instead of silently miscalibrating the critic.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -129,7 +130,9 @@ def explored_mask(attrs: dict, steps: int, where: str) -> np.ndarray:
 def _annotation_gamma(f: DemoFile) -> float:
     annotation = f.attrs.get("annotation")
     if not isinstance(annotation, dict) or "gamma" not in annotation:
-        raise UserInputError(f"{f.path}: data.annotation has no 'gamma' (expected the JSON written by `elegant annotate`)")
+        raise UserInputError(
+            f"{f.path}: data.annotation has no 'gamma' (expected the JSON written by `elegant annotate`)"
+        )
     return float(annotation["gamma"])
 
 
@@ -137,7 +140,9 @@ def segment_length(f: DemoFile) -> int:
     """The window length the file's segment labels were computed with."""
     annotation = f.attrs.get("annotation")
     if not isinstance(annotation, dict) or "segment_length" not in annotation:
-        raise UserInputError(f"{f.path}: data.annotation has no 'segment_length' (expected the JSON written by `elegant annotate`)")
+        raise UserInputError(
+            f"{f.path}: data.annotation has no 'segment_length' (expected the JSON written by `elegant annotate`)"
+        )
     return int(annotation["segment_length"])
 
 
@@ -149,7 +154,9 @@ def step_window_labels(demo, length: int, where: str) -> dict[str, np.ndarray]:
     for c in CRITERIA:
         segments = demo.itc_segments[c]
         if segments.shape != (expected,):
-            raise UserInputError(f"{where}/itc_segments/{c} has shape {segments.shape}, expected ({expected},) windows of {length} steps")
+            raise UserInputError(
+                f"{where}/itc_segments/{c} has shape {segments.shape}, expected ({expected},) windows of {length} steps"
+            )
         labels[c] = segments[windows]
     return labels
 
@@ -173,13 +180,21 @@ def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
         ):
             if value.shape != shape:
                 raise UserInputError(f"{where}/{field} has shape {value.shape}, expected {shape}")
-        demos.append(_RawDemo(
-            path=f.path, name=demo.name, task=demo.task_key,
-            obs=demo.obs, next_obs=demo.next_obs, actions=np.asarray(demo.actions, dtype=np.float32),
-            reward=np.asarray(demo.elegance_reward, dtype=np.float32), mc_return=np.asarray(demo.mc_return, dtype=np.float32),
-            window_kept=np.logical_and.reduce(list(step_window_labels(demo, length, where).values())), success=bool(demo.rewards[-1] > 0),
-            explored=explored_mask(demo.attrs, t, where),
-        ))
+        demos.append(
+            _RawDemo(
+                path=f.path,
+                name=demo.name,
+                task=demo.task_key,
+                obs=demo.obs,
+                next_obs=demo.next_obs,
+                actions=np.asarray(demo.actions, dtype=np.float32),
+                reward=np.asarray(demo.elegance_reward, dtype=np.float32),
+                mc_return=np.asarray(demo.mc_return, dtype=np.float32),
+                window_kept=np.logical_and.reduce(list(step_window_labels(demo, length, where).values())),
+                success=bool(demo.rewards[-1] > 0),
+                explored=explored_mask(demo.attrs, t, where),
+            )
+        )
     return demos
 
 
@@ -229,14 +244,23 @@ def chunk_transitions(transitions: TensorDict, lengths: Sequence[int], chunk: in
         last = torch.arange(steps) + to_next - 1  # the chunk's last step
         flags = {key: demo["next", key][last] for key in ("done", "terminated", "truncated")}
         chunks = torch.from_numpy(action_chunks(demo["action"].numpy(), chunk))
-        out.append(TensorDict({
-            "observation": demo["observation"],
-            "action": chunks,
-            "mc_return": demo["mc_return"],
-            "steps_to_next_obs": to_next.unsqueeze(-1),
-            "next": {"observation": stepped["next", "observation"], "reward": stepped["next", "reward"],
-                     "action": _following(chunks, to_next), **flags},
-        }, batch_size=[steps]))
+        out.append(
+            TensorDict(
+                {
+                    "observation": demo["observation"],
+                    "action": chunks,
+                    "mc_return": demo["mc_return"],
+                    "steps_to_next_obs": to_next.unsqueeze(-1),
+                    "next": {
+                        "observation": stepped["next", "observation"],
+                        "reward": stepped["next", "reward"],
+                        "action": _following(chunks, to_next),
+                        **flags,
+                    },
+                },
+                batch_size=[steps],
+            )
+        )
     return torch.cat(out)
 
 
@@ -261,8 +285,9 @@ def _elegant_success(demos: list[_RawDemo], gamma: float) -> tuple[torch.Tensor,
     return torch.from_numpy(np.concatenate(rewards)), torch.from_numpy(np.concatenate(returns)), np.concatenate(ended)
 
 
-def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: str = "step", chunk: int = 1,
-                     bootstrap: int | None = None) -> TransitionData:
+def load_transitions(
+    paths: Sequence[str], gamma: float | None = None, reward: str = "step", chunk: int = 1, bootstrap: int | None = None
+) -> TransitionData:
     """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
 
     gamma: the critic's discount (default: the annotation's). A shorter horizon than the annotation's
@@ -293,12 +318,17 @@ def load_transitions(paths: Sequence[str], gamma: float | None = None, reward: s
             file_gamma = _annotation_gamma(f)
             if annotation_gamma is not None and file_gamma != annotation_gamma:
                 raise UserInputError(
-                    f"{f.path}: data.annotation gamma is {file_gamma}, but {paths[0]} uses {annotation_gamma}; annotate all files with one gamma"
+                    f"{f.path}: data.annotation gamma is {file_gamma}, but {paths[0]} uses {annotation_gamma}; "
+                    "annotate all files with one gamma"
                 )
             annotation_gamma = file_gamma
             for key, layout in f.state_layouts.items():
-                if key in layouts and [[str(n), int(s)] for n, s in layout] != [[str(n), int(s)] for n, s in layouts[key]]:
-                    raise UserInputError(f"{f.path}: data.state_layouts[{key!r}] differs from the layout of that task in an earlier file")
+                if key in layouts and [[str(n), int(s)] for n, s in layout] != [
+                    [str(n), int(s)] for n, s in layouts[key]
+                ]:
+                    raise UserInputError(
+                        f"{f.path}: data.state_layouts[{key!r}] differs from the layout of that task in an earlier file"
+                    )
                 layouts.setdefault(key, layout)
             demos += _read_demos(f, f.state_layouts)
     if not demos:

@@ -1,14 +1,15 @@
 """Several independently trained critics scored together, so JITI can ask whether they agree.
 
 One critic's ranking of a policy's alternatives on new starts is only a little better than chance
-(held-out advantage AUROC about 0.70 on libero_goal/1, benchmarks/RESULTS.md, "Session 23"), and its confident-looking
+(held-out advantage AUROC about 0.70 on libero_goal/1, docs/lab/jiti-sessions-23-29.md), and its confident-looking
 overrides of a good plan are where JITI loses elegance. Critics trained on different resamples of the
 data (`train_critic(..., bootstrap=seed)`) err differently where the data says little, and agree where
-it is clear; critics that differ only in their network seed make the same mistakes (benchmarks/RESULTS.md, session 25).
+it is clear; critics that differ only in their network seed make the same mistakes (docs/lab/jiti-sessions-23-29.md).
 `CriticEnsemble` scores a state's candidates with every member: `q` is their mean (the value JITI's
 window watches), and `member_q` gives each member's scores so a selection rule can demand that every
 member prefers an alternative to the base plan before overriding it.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
@@ -34,7 +35,7 @@ class CriticEnsemble:
         self.chunk = chunks.pop()
         self.path = ",".join(str(getattr(m, "path", "critic")) for m in self.members)
 
-    def bind(self, metadata: Mapping[str, Any]) -> "CriticEnsemble":
+    def bind(self, metadata: Mapping[str, Any]) -> CriticEnsemble:
         """Bind every member to the env's task (each refuses a task it was not trained on)."""
         for member in self.members:
             member.bind(metadata)

@@ -33,6 +33,7 @@ term to the actor through its reparameterised action, the temperature terms to t
 their sum can be back-propagated once and stepped with one optimiser. The input tensordict is not
 modified. Returns-to-go are not computed here: they are a data transform (`critics.data`).
 """
+
 from __future__ import annotations
 
 import math
@@ -217,7 +218,14 @@ class CalQLLoss(LossModule):
     @property
     def in_keys(self) -> list[NestedKey]:
         k = self.tensor_keys
-        keys = [k.observation, k.action, k.mc_return, ("next", k.observation), ("next", k.reward), ("next", k.terminated)]
+        keys = [
+            k.observation,
+            k.action,
+            k.mc_return,
+            ("next", k.observation),
+            ("next", k.reward),
+            ("next", k.terminated),
+        ]
         return keys + ([("next", k.action)] if self.backup == "dataset" else [])
 
     @property
@@ -271,7 +279,9 @@ class CalQLLoss(LossModule):
         q = self._q(self.qvalue_network_params, obs, torch.cat([action.unsqueeze(1), uniform, policy_actions], dim=1))
         actor_q = self._q(self.qvalue_network_params.detach(), obs, actor_action.unsqueeze(1)).amin(0).squeeze(-1)
         with torch.no_grad():  # .data: swapping the target buffers into the module would turn them into Parameters
-            next_value = self._q(self.target_qvalue_network_params.data, next_obs, next_action.unsqueeze(1)).amin(0).squeeze(-1)
+            next_value = (
+                self._q(self.target_qvalue_network_params.data, next_obs, next_action.unsqueeze(1)).amin(0).squeeze(-1)
+            )
             if self.value_loss == "bce":
                 next_value = torch.sigmoid(next_value)
             target = td0_return_estimate(gamma, next_value, reward.to(next_value.dtype), terminated.bool())
@@ -305,7 +315,9 @@ class CalQLLoss(LossModule):
     def _fit(self, q: Tensor, target: Tensor) -> Tensor:
         """(C, B) per-critic, per-row loss of outputs q against targets (B,)."""
         if self.value_loss == "bce":
-            return torch.nn.functional.binary_cross_entropy_with_logits(q, target.clamp(0.0, 1.0).expand_as(q), reduction="none")
+            return torch.nn.functional.binary_cross_entropy_with_logits(
+                q, target.clamp(0.0, 1.0).expand_as(q), reduction="none"
+            )
         return (q - target).pow(2)
 
     def _floor(self, mc_return: Tensor) -> Tensor:
@@ -317,7 +329,9 @@ class CalQLLoss(LossModule):
     def _cql_gap(self, t: CalQLTerms) -> Tensor:
         """(C, B): ood(s) - Q(s, a_data) for each critic and state."""
         floor = self._floor(t.mc_return) if self.calibrate else None
-        ood = cql_logsumexp(t.q_uniform, t.q_policy, t.policy_log_prob, floor, action_dim=self.action_dim, temperature=self.temperature)
+        ood = cql_logsumexp(
+            t.q_uniform, t.q_policy, t.policy_log_prob, floor, action_dim=self.action_dim, temperature=self.temperature
+        )
         return ood - t.q_data
 
     def cql_loss(self, tensordict: TensorDictBase, terms: CalQLTerms | None = None) -> tuple[Tensor, dict]:

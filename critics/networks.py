@@ -6,6 +6,7 @@ part and an action part: the observation part is computed once per state and sha
 scored at that state (a Cal-QL step scores 1 + 3N actions per state; a JITI decision 16). Together with
 the fused backward below, this runs a Cal-QL step near this CPU's matmul roofline.
 """
+
 from __future__ import annotations
 
 import math
@@ -29,11 +30,20 @@ def _uniform_(tensor: Tensor, fan_in: int) -> Tensor:
 _CHUNK_ROWS = 512
 
 
-def _forward_rows(per_state: Tensor, actions: Tensor, k: int, action_weight: Tensor, weights: Sequence[Tensor], biases: Sequence[Tensor]) -> tuple[Tensor, list[Tensor]]:
+def _forward_rows(
+    per_state: Tensor,
+    actions: Tensor,
+    k: int,
+    action_weight: Tensor,
+    weights: Sequence[Tensor],
+    biases: Sequence[Tensor],
+) -> tuple[Tensor, list[Tensor]]:
     """Q of S states x k actions each: per_state (C, S, H) is the states' first-layer part (bias included),
     actions (S * k, A). Returns q (C, S * k) and the post-ReLU activations of every hidden layer."""
     c, s, width = per_state.shape
-    h = torch.baddbmm(per_state.repeat_interleave(k, dim=1), actions.expand(c, s * k, actions.shape[-1]), action_weight).relu_()
+    h = torch.baddbmm(
+        per_state.repeat_interleave(k, dim=1), actions.expand(c, s * k, actions.shape[-1]), action_weight
+    ).relu_()
     hidden = [h]
     for w, b in zip(weights[:-1], biases[:-1]):
         h = torch.baddbmm(b, h, w).relu_()
@@ -53,7 +63,15 @@ class _FusedTwinMLP(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, obs: Tensor, actions: Tensor, obs_weight: Tensor, action_weight: Tensor, first_bias: Tensor, *layers: Tensor) -> Tensor:
+    def forward(
+        ctx,
+        obs: Tensor,
+        actions: Tensor,
+        obs_weight: Tensor,
+        action_weight: Tensor,
+        first_bias: Tensor,
+        *layers: Tensor,
+    ) -> Tensor:
         n = len(layers) // 2
         weights, biases = layers[:n], layers[n:]
         batch, k, a = actions.shape
@@ -65,7 +83,9 @@ class _FusedTwinMLP(torch.autograd.Function):
         ctx.hidden = []
         for s0 in range(0, batch, step):
             s1 = min(batch, s0 + step)
-            q_rows, hidden = _forward_rows(per_state[:, s0:s1], flat[s0 * k : s1 * k], k, action_weight, weights, biases)
+            q_rows, hidden = _forward_rows(
+                per_state[:, s0:s1], flat[s0 * k : s1 * k], k, action_weight, weights, biases
+            )
             q[:, s0:s1] = q_rows.view(c, s1 - s0, k)
             ctx.hidden.append(hidden)
         ctx.save_for_backward(obs, flat, obs_weight, action_weight, *layers)
@@ -117,7 +137,12 @@ class TwinQNetwork(nn.Module):
         super().__init__()
         if not hidden:
             raise ValueError("TwinQNetwork needs at least one hidden layer")
-        self.obs_dim, self.action_dim, self.hidden, self.n_critics = int(obs_dim), int(action_dim), tuple(int(h) for h in hidden), int(n_critics)
+        self.obs_dim, self.action_dim, self.hidden, self.n_critics = (
+            int(obs_dim),
+            int(action_dim),
+            tuple(int(h) for h in hidden),
+            int(n_critics),
+        )
         fan_in = self.obs_dim + self.action_dim
         first = self.hidden[0]
         self.obs_weight = nn.Parameter(_uniform_(torch.empty(n_critics, obs_dim, first), fan_in))
@@ -127,20 +152,33 @@ class TwinQNetwork(nn.Module):
         self.weights = nn.ParameterList(
             nn.Parameter(_uniform_(torch.empty(n_critics, i, o), i)) for i, o in zip(sizes[:-1], sizes[1:])
         )
-        self.biases = nn.ParameterList(nn.Parameter(_uniform_(torch.empty(n_critics, 1, o), i)) for i, o in zip(sizes[:-1], sizes[1:]))
+        self.biases = nn.ParameterList(
+            nn.Parameter(_uniform_(torch.empty(n_critics, 1, o), i)) for i, o in zip(sizes[:-1], sizes[1:])
+        )
 
     def forward(self, obs: Tensor, actions: Tensor) -> Tensor:
         params = (self.obs_weight, self.action_weight, self.first_bias, *self.weights, *self.biases)
-        if torch.is_grad_enabled() and not (obs.requires_grad or actions.requires_grad) and any(p.requires_grad for p in params):
+        if (
+            torch.is_grad_enabled()
+            and not (obs.requires_grad or actions.requires_grad)
+            and any(p.requires_grad for p in params)
+        ):
             return _FusedTwinMLP.apply(obs, actions, *params)
         batch, k, a = actions.shape
         per_state = torch.baddbmm(self.first_bias, obs.expand(self.n_critics, batch, self.obs_dim), self.obs_weight)
-        q, _ = _forward_rows(per_state, actions.reshape(batch * k, a), k, self.action_weight, list(self.weights), list(self.biases))
+        q, _ = _forward_rows(
+            per_state, actions.reshape(batch * k, a), k, self.action_weight, list(self.weights), list(self.biases)
+        )
         return q.view(self.n_critics, batch, k)
 
     def config(self) -> dict[str, Any]:
         """The constructor arguments, to rebuild the module from a saved state_dict."""
-        return {"obs_dim": self.obs_dim, "action_dim": self.action_dim, "hidden": list(self.hidden), "n_critics": self.n_critics}
+        return {
+            "obs_dim": self.obs_dim,
+            "action_dim": self.action_dim,
+            "hidden": list(self.hidden),
+            "n_critics": self.n_critics,
+        }
 
 
 class TanhGaussianActor(nn.Module):
@@ -149,7 +187,9 @@ class TanhGaussianActor(nn.Module):
     def __init__(self, obs_dim: int, action_dim: int, hidden: Sequence[int] = (256, 256)) -> None:
         super().__init__()
         self.obs_dim, self.action_dim, self.hidden = int(obs_dim), int(action_dim), tuple(int(h) for h in hidden)
-        self.net = MLP(in_features=obs_dim, out_features=2 * action_dim, num_cells=list(self.hidden), activation_class=nn.ReLU)
+        self.net = MLP(
+            in_features=obs_dim, out_features=2 * action_dim, num_cells=list(self.hidden), activation_class=nn.ReLU
+        )
         self.loc_scale = NormalParamExtractor()
 
     def forward(self, obs: Tensor) -> tuple[Tensor, Tensor]:

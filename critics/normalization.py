@@ -14,6 +14,7 @@ box the CQL regulariser samples uniform actions from, so those samples cover the
 A dimension whose data range is narrower than 2 * MIN_HALF_RANGE is given that half-range around its
 centre, so a constant dimension (e.g. a scripted expert that never rotates) does not divide by zero.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -43,7 +44,7 @@ class Normalization:
     action_high: np.ndarray
 
     @classmethod
-    def fit(cls, observations: np.ndarray, actions: np.ndarray, state_dim: int) -> "Normalization":
+    def fit(cls, observations: np.ndarray, actions: np.ndarray, state_dim: int) -> Normalization:
         """Fit on encoded observations (T, state_dim + n_tasks) and raw actions (T, A)."""
         states = np.asarray(observations, dtype=np.float64)[:, :state_dim]
         std = np.maximum(np.maximum(states.std(axis=0), np.ptp(states, axis=0) / MAX_ABS_Z), MIN_STD)
@@ -85,5 +86,7 @@ class Normalization:
         return {k: getattr(self, k).tolist() for k in ("obs_mean", "obs_std", "action_low", "action_high")}
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "Normalization":
-        return cls(**{k: np.asarray(data[k], dtype=np.float32) for k in ("obs_mean", "obs_std", "action_low", "action_high")})
+    def from_dict(cls, data: Mapping[str, Any]) -> Normalization:
+        return cls(
+            **{k: np.asarray(data[k], dtype=np.float32) for k in ("obs_mean", "obs_std", "action_low", "action_high")}
+        )

@@ -6,22 +6,19 @@ separating elegant from violated steps (0.5: no better than chance; 1: every ele
 every violated one). Per criterion, the same AUROC separates segments that kept that criterion from
 segments that violated it.
 """
+
 from __future__ import annotations
 
-import itertools
 import os
-from collections.abc import Iterator, Mapping, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
-from annotations import CRITERIA, DemoFile, task_key
-from base_suites.runtime.errors import UserInputError, unknown_choice
-from base_suites.runtime.seeds import derive_seed
+from annotations import CRITERIA, DemoFile
+from base_suites.runtime.errors import UserInputError
 from critics.artifact import Critic, load
 from critics.data import action_chunks, segment_length, step_window_labels
-
 
 
 def auroc(positive: np.ndarray, negative: np.ndarray) -> float | None:
@@ -50,9 +47,15 @@ def _score_file(critic: Critic, path: str) -> tuple[np.ndarray, dict[str, np.nda
             if key not in bindings:
                 if key not in layouts:
                     raise UserInputError(f"{path}: data.state_layouts has no layout for task {key}")
-                meta = {"suite": demo.attrs["suite"], "task_index": demo.attrs["task_index"], "state_layout": layouts[key]}
+                meta = {
+                    "suite": demo.attrs["suite"],
+                    "task_index": demo.attrs["task_index"],
+                    "state_layout": layouts[key],
+                }
                 bindings[key] = critic._binding_for(meta)
-            q.append(critic._score(bindings[key], demo.obs, action_chunks(demo.actions, critic.chunk)[:, None, :])[:, 0])
+            q.append(
+                critic._score(bindings[key], demo.obs, action_chunks(demo.actions, critic.chunk)[:, None, :])[:, 0]
+            )
             for c, labels in step_window_labels(demo, length, f"{path}: data/{demo.name}").items():
                 kept[c].append(labels)
     return np.concatenate(q), {c: np.concatenate(v) for c, v in kept.items()}
@@ -83,7 +86,11 @@ def evaluate_critic(critic_or_dir: Critic | str | os.PathLike, annotated_paths: 
         "mean_q_elegant": mean(q[elegant]),
         "mean_q_violated": mean(q[~elegant]),
         "per_criterion": {
-            c: {"auroc": auroc(q[kept[c]], q[~kept[c]]), "n_kept": int(kept[c].sum()), "n_violated": int((~kept[c]).sum())}
+            c: {
+                "auroc": auroc(q[kept[c]], q[~kept[c]]),
+                "n_kept": int(kept[c].sum()),
+                "n_violated": int((~kept[c]).sum()),
+            }
             for c in CRITERIA
         },
         "transitions": int(len(q)),

@@ -12,6 +12,7 @@ Output directory:
 A run killed at any point and resumed with `resume=True` continues from its last checkpoint to the same
 parameters as an uninterrupted run with the same arguments (same seed, same thread count).
 """
+
 from __future__ import annotations
 
 import csv
@@ -24,11 +25,11 @@ from typing import Any
 
 import torch
 from tensordict import TensorDictBase
-from tqdm.auto import tqdm
 from torchrl.objectives import SoftUpdate
+from tqdm.auto import tqdm
 
-from base_suites.runtime.io import atomic_write, changed_fields, library_versions
 from base_suites.runtime.errors import UserInputError, unknown_choice
+from base_suites.runtime.io import atomic_write, changed_fields, library_versions
 from critics.artifact import atomic_torch_save, save_critic
 from critics.data import REWARDS, TransitionData, load_transitions, make_replay_buffer
 from critics.loss import BACKUPS, VALUE_LOSSES, CalQLLoss
@@ -92,13 +93,21 @@ class TrainConfig:
         if self.value_loss not in VALUE_LOSSES:
             raise unknown_choice("train-critic value_loss", self.value_loss, VALUE_LOSSES)
         if self.value_loss == "bce" and self.reward != "elegant":
-            raise UserInputError(f"train-critic: value_loss 'bce' needs returns in [0, 1], i.e. reward 'elegant' (got reward {self.reward!r})")
+            raise UserInputError(
+                "train-critic: value_loss 'bce' needs returns in [0, 1], i.e. reward 'elegant' (got reward "
+                f"{self.reward!r})"
+            )
         for name in ("weight_decay", "mc_weight"):
             if not getattr(self, name) >= 0.0:
                 raise UserInputError(f"train-critic: {name} must be >= 0, got {getattr(self, name)}")
-        if not 0.0 <= self.explored_fraction < 1.0 or (self.explored_fraction > 0 and not 0 < self.explored_per_batch < self.batch_size):
-            raise UserInputError(f"train-critic: explored_fraction must lie in [0, 1) and leave at least one row of each kind in a batch "
-                                 f"of {self.batch_size}, got {self.explored_fraction}")
+        if not 0.0 <= self.explored_fraction < 1.0 or (
+            self.explored_fraction > 0 and not 0 < self.explored_per_batch < self.batch_size
+        ):
+            raise UserInputError(
+                "train-critic: explored_fraction must lie in [0, 1) and leave at least one row of each kind in a "
+                "batch "
+                f"of {self.batch_size}, got {self.explored_fraction}"
+            )
 
 
 class _Run:
@@ -109,9 +118,17 @@ class _Run:
         critic = TwinQNetwork(data.obs_dim, data.action_dim, cfg.hidden)
         actor = TanhGaussianActor(data.obs_dim, data.action_dim, cfg.hidden)
         self.loss = CalQLLoss(
-            actor, critic, gamma=data.gamma, n_actions=cfg.n_actions, cql_weight=cfg.cql_weight,
-            temperature=cfg.temperature, calibrate=cfg.calibrate, with_lagrange=cfg.with_lagrange,
-            target_action_gap=cfg.target_action_gap, backup=cfg.backup, mc_weight=cfg.mc_weight,
+            actor,
+            critic,
+            gamma=data.gamma,
+            n_actions=cfg.n_actions,
+            cql_weight=cfg.cql_weight,
+            temperature=cfg.temperature,
+            calibrate=cfg.calibrate,
+            with_lagrange=cfg.with_lagrange,
+            target_action_gap=cfg.target_action_gap,
+            backup=cfg.backup,
+            mc_weight=cfg.mc_weight,
             value_loss=cfg.value_loss,
         )
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
@@ -119,7 +136,11 @@ class _Run:
             {"params": list(self.loss.actor_network_params.values(True, True)), "lr": cfg.actor_lr},
             # Decay shrinks Q's dependence on state details the few starts make memorisable (a Q that
             # tells the episodes apart by their states need not rank the actions taken in one of them).
-            {"params": list(self.loss.qvalue_network_params.values(True, True)), "lr": cfg.critic_lr, "weight_decay": cfg.weight_decay},
+            {
+                "params": list(self.loss.qvalue_network_params.values(True, True)),
+                "lr": cfg.critic_lr,
+                "weight_decay": cfg.weight_decay,
+            },
             {"params": [self.loss.log_alpha], "lr": cfg.alpha_lr},
         ]
         if cfg.with_lagrange:
@@ -135,8 +156,11 @@ class _Run:
         if cfg.explored_per_batch:
             rows = data.explored.nonzero().flatten()
             if not len(rows):
-                raise UserInputError(f"train-critic: explored_fraction {cfg.explored_fraction} but no demo in {', '.join(cfg.paths)} has "
-                                     "explored_steps (record some with `elegant rollouts --explore` or `--explore-at`)")
+                raise UserInputError(
+                    f"train-critic: explored_fraction {cfg.explored_fraction} but no demo in {', '.join(cfg.paths)} "
+                    "has "
+                    "explored_steps (record some with `elegant rollouts --explore` or `--explore-at`)"
+                )
             self.explored_buffer = make_replay_buffer(data.transitions[rows], cfg.explored_per_batch, self.generator)
 
     def step(self) -> TensorDictBase:
@@ -176,7 +200,9 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # truncated or garbled files raise assorted errors from torch's unpickler/zip reader
-        raise UserInputError(f"{path}: corrupt checkpoint ({exc.__class__.__name__}); delete it to start over") from None
+        raise UserInputError(
+            f"{path}: corrupt checkpoint ({exc.__class__.__name__}); delete it to start over"
+        ) from None
     if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
         raise UserInputError(f"{path}: not a critic training checkpoint (field 'format' is not {CHECKPOINT_FORMAT!r})")
     return state
@@ -184,14 +210,26 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
     # settings added after some checkpoints were written, with the values those runs trained with
-    added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse", "explored_fraction": 0.0,
-             "bootstrap": None}
+    added = {
+        "chunk": 1,
+        "backup": "policy",
+        "weight_decay": 0.0,
+        "mc_weight": 0.0,
+        "value_loss": "mse",
+        "explored_fraction": 0.0,
+        "bootstrap": None,
+    }
     changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added)
     if changed:
-        raise UserInputError(f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
-                             + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed) + ")")
+        raise UserInputError(
+            f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
+            + ", ".join(f"{k}={saved!r}" for k, saved, _ in changed)
+            + ")"
+        )
     if state["fingerprint"] != fingerprint:
-        raise UserInputError(f"{path}: the training data changed since this checkpoint was written (fingerprint differs)")
+        raise UserInputError(
+            f"{path}: the training data changed since this checkpoint was written (fingerprint differs)"
+        )
 
 
 class _MetricsLog:
@@ -265,17 +303,34 @@ def train_critic(
     steps_per_second (of this invocation), and final (the last logged value of every loss and diagnostic).
     """
     cfg = TrainConfig(
-        paths=[os.path.abspath(p) for p in paths], steps=steps, batch_size=batch_size, seed=seed, n_actions=n_actions,
-        hidden=[int(h) for h in hidden], cql_weight=cql_weight, calibrate=calibrate, with_lagrange=with_lagrange,
-        log_every=log_every, checkpoint_every=checkpoint_every, gamma=gamma, reward=reward, chunk=chunk,
-        backup=backup, weight_decay=weight_decay, mc_weight=mc_weight, value_loss=value_loss, explored_fraction=explored_fraction,
+        paths=[os.path.abspath(p) for p in paths],
+        steps=steps,
+        batch_size=batch_size,
+        seed=seed,
+        n_actions=n_actions,
+        hidden=[int(h) for h in hidden],
+        cql_weight=cql_weight,
+        calibrate=calibrate,
+        with_lagrange=with_lagrange,
+        log_every=log_every,
+        checkpoint_every=checkpoint_every,
+        gamma=gamma,
+        reward=reward,
+        chunk=chunk,
+        backup=backup,
+        weight_decay=weight_decay,
+        mc_weight=mc_weight,
+        value_loss=value_loss,
+        explored_fraction=explored_fraction,
         bootstrap=bootstrap,
     )
     cfg.validate()
     os.makedirs(out, exist_ok=True)
     ckpt_path = os.path.join(out, CHECKPOINT_FILE)
     if os.path.exists(ckpt_path) and not resume:
-        raise UserInputError(f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory")
+        raise UserInputError(
+            f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory"
+        )
 
     data = load_transitions(cfg.paths, cfg.gamma, cfg.reward, cfg.chunk, cfg.bootstrap)
     fingerprint = data.fingerprint()
@@ -286,7 +341,10 @@ def train_critic(
         state = _read_checkpoint(ckpt_path)
         _check_resumable(ckpt_path, state, cfg, fingerprint)
         if int(state["step"]) > cfg.steps:
-            raise UserInputError(f"{ckpt_path}: checkpoint is at step {state['step']}, beyond steps={cfg.steps}; ask for at least that many")
+            raise UserInputError(
+                f"{ckpt_path}: checkpoint is at step {state['step']}, beyond steps={cfg.steps}; ask for at least "
+                "that many"
+            )
         run.restore(state)
         start = resumed_from = int(state["step"])
 
@@ -299,15 +357,24 @@ def train_critic(
         if step % cfg.log_every == 0 or step == cfg.steps:
             last = {k: float(v.detach()) for k, v in losses.items()}
             metrics.append(step, last)
-            bar.set_postfix({k.removeprefix("loss_"): f"{last[k]:.3g}" for k in ("loss_qvalue", "loss_cql", "loss_actor", "alpha")})
+            bar.set_postfix(
+                {k.removeprefix("loss_"): f"{last[k]:.3g}" for k in ("loss_qvalue", "loss_cql", "loss_actor", "alpha")}
+            )
         if step % cfg.checkpoint_every == 0 or step == cfg.steps:
             atomic_torch_save(ckpt_path, run.state(step, cfg, fingerprint))
         bar.update(1)
     bar.close()
     seconds = time.perf_counter() - began
 
-    save_critic(out, run.loss.get_stateful_net("qvalue_network"), data.encoder, data.normalization,
-                gamma=data.gamma, chunk=data.chunk, training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)})
+    save_critic(
+        out,
+        run.loss.get_stateful_net("qvalue_network"),
+        data.encoder,
+        data.normalization,
+        gamma=data.gamma,
+        chunk=data.chunk,
+        training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)},
+    )
     trained = max(cfg.steps - start, 0)
     return {
         "out": out,

@@ -4,6 +4,7 @@
 resolved on first use (PEP 562) so that the CLI (`elegant --help`) does not pay for numpy, torch or the
 simulator.
 """
+
 from __future__ import annotations
 
 from base_suites.runtime.lazy import lazy_getattr

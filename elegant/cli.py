@@ -3,6 +3,7 @@
 Heavy imports (robosuite, LIBERO, torch) happen inside the command functions, so `elegant --help` is
 instant. A user mistake (`UserInputError`) becomes one line on stderr and exit status 2.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -101,7 +102,11 @@ def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
     p.add_argument("--episodes", type=int, default=50, help="episodes per task")
-    p.add_argument("--quality", default="clean", help="clean, mixed, or knob=prob,... (knobs: collide, drop, misplace, tilt, wrong_order, jerky, regrasp)")
+    p.add_argument(
+        "--quality",
+        default="clean",
+        help="clean, mixed, or knob=prob,... (knobs: collide, drop, misplace, tilt, wrong_order, jerky, regrasp)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true", help="continue an interrupted file")
@@ -113,8 +118,16 @@ def _demos(args: argparse.Namespace) -> dict:
     from annotations.collect import collect_demos
     from base_suites.experts import parse_quality
 
-    return collect_demos(args.suite, _task_list(args.tasks), args.episodes, args.out, quality=parse_quality(args.quality),
-                         seed=args.seed, resume=args.resume, workers=args.workers)
+    return collect_demos(
+        args.suite,
+        _task_list(args.tasks),
+        args.episodes,
+        args.out,
+        quality=parse_quality(args.quality),
+        seed=args.seed,
+        resume=args.resume,
+        workers=args.workers,
+    )
 
 
 def _rollouts_args(p: argparse.ArgumentParser) -> None:
@@ -122,13 +135,27 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
     p.add_argument("--episodes", type=int, default=50, help="episodes per task")
-    p.add_argument("--explore", type=float, default=0.0, help="fraction of decisions given a random candidate within the trust radius")
-    p.add_argument("--explore-at", help="instead of --explore: decision steps, e.g. 8,24,40; each episode takes a random "
-                   "candidate at one of them (starts cycle first, then the steps), so episodes from one start differ in one decision")
+    p.add_argument(
+        "--explore",
+        type=float,
+        default=0.0,
+        help="fraction of decisions given a random candidate within the trust radius",
+    )
+    p.add_argument(
+        "--explore-at",
+        help="instead of --explore: decision steps, e.g. 8,24,40; each episode takes a random "
+        "candidate at one of them (starts cycle first, then the steps), so episodes from one start differ in one "
+        "decision",
+    )
     p.add_argument("--trust-radius", type=float, default=0.3)
     _policy_act_arg(p)
-    p.add_argument("--init-states", help="start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)")
-    p.add_argument("--perturbation", help="as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states")
+    p.add_argument(
+        "--init-states", help="start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)"
+    )
+    p.add_argument(
+        "--perturbation",
+        help="as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states",
+    )
     p.add_argument("--max-steps", type=int)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")
@@ -136,15 +163,30 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     _workers_arg(p)
 
 
-@command("rollouts", "record a policy's episodes (optionally exploring) as a demo-layout HDF5 for annotation and critic training")(_rollouts_args)
+@command(
+    "rollouts",
+    "record a policy's episodes (optionally exploring) as a demo-layout HDF5 for annotation and critic training",
+)(_rollouts_args)
 def _rollouts(args: argparse.Namespace) -> dict:
     from elegant.evaluation.rollouts import collect_rollouts
 
-    return collect_rollouts(args.suite, _task_list(args.tasks), args.policy, args.episodes, args.out, explore=args.explore,
-                            explore_at=parse_indices(args.explore_at, "--explore-at"), trust_radius=args.trust_radius,
-                            init_states=parse_indices(args.init_states, "--init-states"),
-                            seed=args.seed, max_steps=args.max_steps, perturbation=args.perturbation, resume=args.resume,
-                            workers=args.workers, policy_act=args.policy_act)
+    return collect_rollouts(
+        args.suite,
+        _task_list(args.tasks),
+        args.policy,
+        args.episodes,
+        args.out,
+        explore=args.explore,
+        explore_at=parse_indices(args.explore_at, "--explore-at"),
+        trust_radius=args.trust_radius,
+        init_states=parse_indices(args.init_states, "--init-states"),
+        seed=args.seed,
+        max_steps=args.max_steps,
+        perturbation=args.perturbation,
+        resume=args.resume,
+        workers=args.workers,
+        policy_act=args.policy_act,
+    )
 
 
 def _import_args(p: argparse.ArgumentParser) -> None:
@@ -177,8 +219,15 @@ def _annotate(args: argparse.Namespace) -> dict:
     from annotations import annotate_file, export_segment_labels
 
     out = args.out or (args.demos[:-5] if args.demos.endswith(".hdf5") else args.demos) + ".annotated.hdf5"
-    summary = annotate_file(args.demos, out, labels_csv=args.labels, overrides_dir=args.specs, gamma=args.gamma, resume=args.resume,
-                            workers=args.workers)
+    summary = annotate_file(
+        args.demos,
+        out,
+        labels_csv=args.labels,
+        overrides_dir=args.specs,
+        gamma=args.gamma,
+        resume=args.resume,
+        workers=args.workers,
+    )
     if args.export_labels:
         export_segment_labels(out, args.export_labels)
     return summary
@@ -205,13 +254,28 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch-size", type=int, default=256)
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--history", type=int, default=10, help="states stacked as input")
-    p.add_argument("--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)")
+    p.add_argument(
+        "--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)"
+    )
     p.add_argument("--modes", type=int, help="components of the GMM action head (default 16)")
-    p.add_argument("--successful-only", action="store_true", help="train on the demos whose episode succeeded (as LIBERO's datasets hold)")
-    p.add_argument("--no-task-film", dest="task_film", action="store_false",
-                   help="feed the task one-hot at the input only (policies before FiLM task conditioning)")
-    p.add_argument("--obs-noise", type=float, default=0.0,
-                   help="std (normalised units) of Gaussian noise added to input states in training, so the policy learns to steer back")
+    p.add_argument(
+        "--successful-only",
+        action="store_true",
+        help="train on the demos whose episode succeeded (as LIBERO's datasets hold)",
+    )
+    p.add_argument(
+        "--no-task-film",
+        dest="task_film",
+        action="store_false",
+        help="feed the task one-hot at the input only (policies before FiLM task conditioning)",
+    )
+    p.add_argument(
+        "--obs-noise",
+        type=float,
+        default=0.0,
+        help="std (normalised units) of Gaussian noise added to input states in training, "
+        "so the policy learns to steer back",
+    )
     p.add_argument("--resume", action="store_true")
 
 
@@ -219,10 +283,21 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
 def _train_policy(args: argparse.Namespace) -> dict:
     from elegant.policies import train_policy
 
-    summary = train_policy(args.data, args.out, epochs=args.epochs, seed=args.seed, resume=args.resume,
-                           batch_size=args.batch_size, lr=args.lr, history=args.history, chunk=args.chunk,
-                           successful_only=args.successful_only, task_film=args.task_film, obs_noise=args.obs_noise,
-                           **({} if args.modes is None else {"modes": args.modes}))
+    summary = train_policy(
+        args.data,
+        args.out,
+        epochs=args.epochs,
+        seed=args.seed,
+        resume=args.resume,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        history=args.history,
+        chunk=args.chunk,
+        successful_only=args.successful_only,
+        task_film=args.task_film,
+        obs_noise=args.obs_noise,
+        **({} if args.modes is None else {"modes": args.modes}),
+    )
     summary.pop("loss_history", None)
     return summary
 
@@ -238,22 +313,44 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--checkpoint-every", type=int, default=1000)
     p.add_argument("--lagrange", action="store_true", help="tune the CQL weight with a Lagrange multiplier")
     p.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
-    p.add_argument("--reward", default="step",
-                   help="step: penalise each violating step; segment: every step of a violating 25-frame window; "
-                   "elegant: 1 for an elegant success, the episode ending at its first violating window")
-    p.add_argument("--chunk", type=int, default=1, help="actions per scored decision (the chunk length of the policy to judge)")
-    p.add_argument("--backup", default="policy",
-                   help="the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action, in-sample)")
+    p.add_argument(
+        "--reward",
+        default="step",
+        help="step: penalise each violating step; segment: every step of a violating 25-frame window; "
+        "elegant: 1 for an elegant success, the episode ending at its first violating window",
+    )
+    p.add_argument(
+        "--chunk", type=int, default=1, help="actions per scored decision (the chunk length of the policy to judge)"
+    )
+    p.add_argument(
+        "--backup",
+        default="policy",
+        help="the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action, in-sample)",
+    )
     p.add_argument("--hidden", default="256,256", help="hidden layer widths of the critics and the actor, e.g. 64,64")
     p.add_argument("--weight-decay", type=float, default=0.0, help="decoupled weight decay of the critics' weights")
-    p.add_argument("--mc-weight", type=float, default=0.0, help="weight of Q's regression on the Monte-Carlo returns beside TD")
-    p.add_argument("--value-loss", default="mse", help="mse, or bce (with --reward elegant): the critics output logits fitted "
-                   "to the target probability by cross-entropy")
-    p.add_argument("--explored-fraction", type=float, default=0.0,
-                   help="share of each batch drawn from explored decisions (rollouts' explored_steps), e.g. 0.5")
-    p.add_argument("--bootstrap", type=int, metavar="SEED",
-                   help="train on a bootstrap resample of the episodes drawn with this seed: one member of a critic "
-                   "ensemble (pass the members' directories comma-separated to eval --critic)")
+    p.add_argument(
+        "--mc-weight", type=float, default=0.0, help="weight of Q's regression on the Monte-Carlo returns beside TD"
+    )
+    p.add_argument(
+        "--value-loss",
+        default="mse",
+        help="mse, or bce (with --reward elegant): the critics output logits fitted "
+        "to the target probability by cross-entropy",
+    )
+    p.add_argument(
+        "--explored-fraction",
+        type=float,
+        default=0.0,
+        help="share of each batch drawn from explored decisions (rollouts' explored_steps), e.g. 0.5",
+    )
+    p.add_argument(
+        "--bootstrap",
+        type=int,
+        metavar="SEED",
+        help="train on a bootstrap resample of the episodes drawn with this seed: one member of a critic "
+        "ensemble (pass the members' directories comma-separated to eval --critic)",
+    )
     p.add_argument("--resume", action="store_true")
 
 
@@ -261,43 +358,75 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
 def _train_critic(args: argparse.Namespace) -> dict:
     from critics import train_critic
 
-    return train_critic(args.data, args.out, steps=args.steps, batch_size=args.batch_size, seed=args.seed, resume=args.resume,
-                        n_actions=args.n_actions, cql_weight=args.cql_weight, checkpoint_every=args.checkpoint_every,
-                        with_lagrange=args.lagrange, gamma=args.gamma, reward=args.reward, chunk=args.chunk,
-                        backup=args.backup, hidden=parse_indices(args.hidden, "--hidden"), weight_decay=args.weight_decay,
-                        mc_weight=args.mc_weight, value_loss=args.value_loss, explored_fraction=args.explored_fraction,
-                        bootstrap=args.bootstrap)
+    return train_critic(
+        args.data,
+        args.out,
+        steps=args.steps,
+        batch_size=args.batch_size,
+        seed=args.seed,
+        resume=args.resume,
+        n_actions=args.n_actions,
+        cql_weight=args.cql_weight,
+        checkpoint_every=args.checkpoint_every,
+        with_lagrange=args.lagrange,
+        gamma=args.gamma,
+        reward=args.reward,
+        chunk=args.chunk,
+        backup=args.backup,
+        hidden=parse_indices(args.hidden, "--hidden"),
+        weight_decay=args.weight_decay,
+        mc_weight=args.mc_weight,
+        value_loss=args.value_loss,
+        explored_fraction=args.explored_fraction,
+        bootstrap=args.bootstrap,
+    )
 
 
 def _rank_check_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("rollouts", help="annotated branch rollouts (elegant rollouts --explore-at, then elegant annotate), "
-                   "best from starts the critic did not train on")
+    p.add_argument(
+        "rollouts",
+        help="annotated branch rollouts (elegant rollouts --explore-at, then elegant annotate), "
+        "best from starts the critic did not train on",
+    )
     p.add_argument("--policy", required=True, help="the policy directory that recorded the rollouts")
-    p.add_argument("--critic", required=True, help="critic directory (from train-critic), or comma-separated ones scored as an ensemble")
+    p.add_argument(
+        "--critic",
+        required=True,
+        help="critic directory (from train-critic), or comma-separated ones scored as an ensemble",
+    )
     p.add_argument("--out", help="also write the result here as JSON")
 
 
-@command("rank-check", "how well a critic ranks a policy's explored alternatives against its own plan, by their annotated outcome")(_rank_check_args)
+@command(
+    "rank-check",
+    "how well a critic ranks a policy's explored alternatives against its own plan, by their annotated outcome",
+)(_rank_check_args)
 def _rank_check(args: argparse.Namespace) -> dict:
     from base_suites.runtime.io import atomic_write_json
     from elegant.diagnostics.branch_ranking import branch_ranking
     from elegant.evaluation.runner import open_critic, open_policy
     from elegant.policies import as_policy
 
-    result = branch_ranking(args.rollouts, as_policy(open_policy(args.policy), seed=0), open_critic(args.critic), progress=True)
+    result = branch_ranking(
+        args.rollouts, as_policy(open_policy(args.policy), seed=0), open_critic(args.critic), progress=True
+    )
     if args.out:
         atomic_write_json(args.out, result)
     return result
 
 
 def _eval_args(p: argparse.ArgumentParser) -> None:
-    from elegant.intervention.jiti import MODES, THRESHOLD_MODES, TRIGGERS, WARMUPS  # light: no torch
+    from base_suites.runtime.settings import add_settings_arguments
+    from elegant.intervention.config import MODES, JITIConfig  # light: no torch
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
-    p.add_argument("--critic", help="critic directory (from train-critic), or comma-separated ones: an ensemble whose members "
-                   "must all prefer an override; required for jiti and always")
+    p.add_argument(
+        "--critic",
+        help="critic directory (from train-critic), or comma-separated ones: an ensemble whose members "
+        "must all prefer an override; required for jiti and always",
+    )
     p.add_argument("--mode", choices=MODES, default="jiti")
     _policy_act_arg(p)
     p.add_argument("--episodes", type=int, default=10, help="episodes per task")
@@ -306,49 +435,63 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resume", action="store_true", help="skip episodes already in RUN/episodes.jsonl")
     p.add_argument("--perturbation", help="LIBERO-PRO perturbations, e.g. init:3,language")
     p.add_argument("--max-steps", type=int)
-    p.add_argument("--window", type=int)
-    p.add_argument("--threshold", type=float)
-    p.add_argument("--threshold-mode", choices=THRESHOLD_MODES)
-    p.add_argument("--candidates", type=int, dest="n_candidates")
-    p.add_argument("--noise-scale", type=float)
-    p.add_argument("--trust-radius", type=float, help="only candidates within this L2 distance of the base action may be chosen")
-    p.add_argument("--random-rate", type=float, help="mode random: the fraction of decisions given a random eligible candidate")
-    p.add_argument("--min-gain", type=float, help="override the base action only when the best candidate's Q beats its Q by more than this")
-    p.add_argument("--trigger", choices=TRIGGERS,
-                   help="critical moment: |q - mean| > tau (deviation, default), q below the mean by more than tau (drop), "
-                        "or none (with --warmup steer: only the warm-up is steered)")
-    p.add_argument("--max-overrides", type=int, help="mode jiti: stop intervening after this many overrides in an episode (default: no limit)")
-    p.add_argument("--warmup", choices=WARMUPS,
-                   help="mode jiti: the first --window decisions, before a fluctuation can be measured, execute the base plan "
-                        "(base, default) or the critic's choice (steer)")
+    add_settings_arguments(p, JITIConfig, exclude=("mode",))
     p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
-    p.add_argument("--gate", help="mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)")
+    p.add_argument(
+        "--gate",
+        help="mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)",
+    )
     _workers_arg(p)
 
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
 def _eval(args: argparse.Namespace) -> dict:
-    from elegant.evaluation.runner import JITI_SETTINGS, evaluate
+    from base_suites.runtime.settings import settings_from_args
+    from elegant.evaluation.runner import evaluate
+    from elegant.intervention.config import JITIConfig
 
-    jiti_kwargs = {k: getattr(args, k) for k in JITI_SETTINGS if getattr(args, k, None) is not None}
-    summary = evaluate(args.suite, _task_list(args.tasks), args.policy, args.critic, mode=args.mode, episodes=args.episodes,
-                       seed=args.seed, out=args.out, resume=args.resume, perturbation=args.perturbation,
-                       jiti_kwargs=jiti_kwargs, max_steps=args.max_steps, init_states=parse_indices(args.init_states, "--init-states"),
-                       gate=args.gate, workers=args.workers, policy_act=args.policy_act)
+    jiti_kwargs = settings_from_args(args, JITIConfig, exclude=("mode",))
+    summary = evaluate(
+        args.suite,
+        _task_list(args.tasks),
+        args.policy,
+        args.critic,
+        mode=args.mode,
+        episodes=args.episodes,
+        seed=args.seed,
+        out=args.out,
+        resume=args.resume,
+        perturbation=args.perturbation,
+        jiti_kwargs=jiti_kwargs,
+        max_steps=args.max_steps,
+        init_states=parse_indices(args.init_states, "--init-states"),
+        gate=args.gate,
+        workers=args.workers,
+        policy_act=args.policy_act,
+    )
     return {k: v for k, v in summary.items() if k != "per_task"}
 
 
 def _gate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("base_run", help="a base-mode run on validation starts (e.g. --init-states 0-24)")
     p.add_argument("jiti_run", help="the JITI run to judge, on the same starts")
-    p.add_argument("--always", help="an `always` run on the same starts: a task may then re-rank every decision where that did best")
-    p.add_argument("--budget", type=float,
-                   help="with --always: the suite's interventions per episode at most this share of always's "
-                        "(default: elegant.intervention.gate.INTERVENTION_BUDGET, 0.4)")
+    p.add_argument(
+        "--always",
+        help="an `always` run on the same starts: a task may then re-rank every decision where that did best",
+    )
+    p.add_argument(
+        "--budget",
+        type=float,
+        help="with --always: the suite's interventions per episode at most this share of always's "
+        "(default: elegant.intervention.gate.INTERVENTION_BUDGET, 0.4)",
+    )
     p.add_argument("--out", required=True, help="gate file (JSON) for elegant eval --gate")
 
 
-@command("gate", "choose per task base, JITI (or always) by what, on validation starts, made more episodes elegant than it spoiled")(_gate_args)
+@command(
+    "gate",
+    "choose per task base, JITI (or always) by what, on validation starts, made more episodes elegant than it spoiled",
+)(_gate_args)
 def _gate(args: argparse.Namespace) -> dict:
     from elegant.intervention.gate import write_gate
 
@@ -362,22 +505,44 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tasks", required=True, help="comma-separated task indices in learning order, e.g. 0,1,2")
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--epochs", type=int, default=50, help="training epochs per task")
-    p.add_argument("--eval-every", type=int, default=5, help="evaluate the task being learned every E epochs (and before training on it)")
+    p.add_argument(
+        "--eval-every",
+        type=int,
+        default=5,
+        help="evaluate the task being learned every E epochs (and before training on it)",
+    )
     p.add_argument("--episodes", type=int, default=20, help="episodes per evaluation")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-steps", type=int, help="episode horizon (default: the suite's)")
-    p.add_argument("--modes", type=int, help="components of the policy's GMM head (default 16; runs from before this option used 5)")
+    p.add_argument(
+        "--modes",
+        type=int,
+        help="components of the policy's GMM head (default 16; runs from before this option used 5)",
+    )
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
     _workers_arg(p)
 
 
-@command("lifelong", "LIBERO's lifelong protocol (sequential fine-tuning): FWT, NBT, AUC from success and elegant success")(_lifelong_args)
+@command(
+    "lifelong", "LIBERO's lifelong protocol (sequential fine-tuning): FWT, NBT, AUC from success and elegant success"
+)(_lifelong_args)
 def _lifelong(args: argparse.Namespace) -> dict:
     from elegant.evaluation.lifelong import run_lifelong
 
-    result = run_lifelong(args.suite, _task_list(args.tasks), args.data, args.out, epochs=args.epochs, eval_every=args.eval_every,
-                          episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, resume=args.resume, workers=args.workers,
-                          **({} if args.modes is None else {"modes": args.modes}))
+    result = run_lifelong(
+        args.suite,
+        _task_list(args.tasks),
+        args.data,
+        args.out,
+        epochs=args.epochs,
+        eval_every=args.eval_every,
+        episodes=args.episodes,
+        seed=args.seed,
+        max_steps=args.max_steps,
+        resume=args.resume,
+        workers=args.workers,
+        **({} if args.modes is None else {"modes": args.modes}),
+    )
     return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
 
 
@@ -410,19 +575,33 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     _workers_arg(p, default=available_cores())
 
 
-@command("quickstart", "JITI's recipe on one task at small sizes: demos -> annotate -> policy -> branch rollouts -> critic -> "
-                       "eval base and JITI -> report")(_quickstart_args)
+@command(
+    "quickstart",
+    "JITI's recipe on one task at small sizes: demos -> annotate -> policy -> branch rollouts -> critic -> "
+    "eval base and JITI -> report",
+)(_quickstart_args)
 def _quickstart(args: argparse.Namespace) -> dict:
     from elegant.pipeline import quickstart
 
-    result = quickstart(args.out, suites=(args.suite,), tasks=(args.task,), demos=args.demos, critic_steps=args.critic_steps,
-                        policy_epochs=args.policy_epochs, episodes=args.episodes, seed=args.seed, workers=args.workers)
+    result = quickstart(
+        args.out,
+        suites=(args.suite,),
+        tasks=(args.task,),
+        demos=args.demos,
+        critic_steps=args.critic_steps,
+        policy_epochs=args.policy_epochs,
+        episodes=args.episodes,
+        seed=args.seed,
+        workers=args.workers,
+    )
     # one suite and one task: the per-suite and per-task rows repeat the pooled numbers
     return {k: v for k, v in result.items() if k not in ("per_suite", "per_task")}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="elegant", description="Measure and improve how elegantly policies execute LIBERO tasks.")
+    parser = argparse.ArgumentParser(
+        prog="elegant", description="Measure and improve how elegantly policies execute LIBERO tasks."
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (help_text, add_arguments, run) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)

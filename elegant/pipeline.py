@@ -7,6 +7,7 @@ report. Each step writes its output atomically and is
 skipped when that output already exists, so an interrupted chain continues where it stopped; a chain
 directory refuses to continue under other settings.
 """
+
 from __future__ import annotations
 
 import json
@@ -14,8 +15,8 @@ import os
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
-from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.errors import UserInputError, unknown_choice
+from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS
 
 MODES = ("base", "always", "jiti")
@@ -40,7 +41,8 @@ class ChainConfig:
     on libero_object/0 JITI then intervened 33% as often as `always`. `max_steps` None keeps the
     suites' horizons. `chunk`: actions per decision of the BC policy (executed open-loop) and of the
     critic that judges them; JITI then chooses among whole chunks (see `elegant.intervention.jiti`). `window`: JITI's
-    window in decisions (None: JITI's default); `trigger` JITI's critical-moment test (None: JITI's default). `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
+    window in decisions (None: JITI's default); `trigger` JITI's critical-moment test (None: JITI's default).
+    `policy_modes`: components of the BC policy's GMM head (None: `train_policy`'s default).
     `policy_successful_only`: the policy clones only the demos that succeeded (the critic still sees all).
     `policy_obs_noise`: std of the Gaussian noise on the policy's normalised input states in training.
     `critic_rollouts`: episodes per task of the trained policy, with a random candidate within the trust
@@ -134,16 +136,23 @@ class ChainConfig:
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
         if self.rollout_explore_at is not None and (not self.rollout_explore_at or min(self.rollout_explore_at) < 0):
-            raise UserInputError(f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}")
-        from elegant.intervention.jiti import check_candidates, check_trigger_and_warmup
+            raise UserInputError(
+                f"chain rollout_explore_at must list decision steps >= 0, got {list(self.rollout_explore_at)}"
+            )
+        from elegant.intervention.config import JITIConfig
 
-        check_trigger_and_warmup(self.trigger, self.warmup, jiti_mode="jiti" in self.modes, owner="chain")
-        if self.candidates is not None:
-            check_candidates(self.candidates, setting="chain candidates")
+        mode = "jiti" if "jiti" in self.modes else "always"
+        try:  # JITI's settings, checked by JITI's own rules before hours of demos, not after
+            JITIConfig.from_settings(self.jiti_settings(mode), mode=mode)
+        except UserInputError as e:
+            raise UserInputError(f"chain {e}") from None
         if self.critic_explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic_explored_fraction needs explored decisions: give critic_rollouts > 0")
         if self.jiti_gate and not self.critic_rollouts:
-            raise UserInputError("chain jiti_gate validates on the rollouts' starts, apart from the evaluated ones: give critic_rollouts > 0")
+            raise UserInputError(
+                "chain jiti_gate validates on the rollouts' starts, apart from the evaluated ones: give "
+                "critic_rollouts > 0"
+            )
         from critics import TrainConfig  # torch loads only when a chain runs
 
         try:  # the critic's settings, checked by the critic's own rules before hours of demos, not after
@@ -153,16 +162,34 @@ class ChainConfig:
 
     def critic_settings(self) -> dict[str, Any]:
         """`train_critic`'s keyword arguments besides the data, the directory and the run controls."""
-        return {"steps": self.critic_steps, "seed": self.seed, "gamma": self.critic_gamma, "cql_weight": self.critic_cql_weight,
-                "reward": self.critic_reward, "chunk": self.chunk, "backup": self.critic_backup, "hidden": list(self.critic_hidden),
-                "weight_decay": self.critic_weight_decay, "mc_weight": self.critic_mc_weight, "value_loss": self.critic_value_loss,
-                "explored_fraction": self.critic_explored_fraction}
+        return {
+            "steps": self.critic_steps,
+            "seed": self.seed,
+            "gamma": self.critic_gamma,
+            "cql_weight": self.critic_cql_weight,
+            "reward": self.critic_reward,
+            "chunk": self.chunk,
+            "backup": self.critic_backup,
+            "hidden": list(self.critic_hidden),
+            "weight_decay": self.critic_weight_decay,
+            "mc_weight": self.critic_mc_weight,
+            "value_loss": self.critic_value_loss,
+            "explored_fraction": self.critic_explored_fraction,
+        }
 
     def jiti_settings(self, mode: str) -> dict[str, Any] | None:
         if mode == "base":
             return None
-        settings = {"trust_radius": self.trust_radius, "threshold": self.threshold, "threshold_mode": self.threshold_mode, "window": self.window,
-                    "trigger": self.trigger, "max_overrides": self.max_overrides, "warmup": self.warmup, "n_candidates": self.candidates}
+        settings = {
+            "trust_radius": self.trust_radius,
+            "threshold": self.threshold,
+            "threshold_mode": self.threshold_mode,
+            "window": self.window,
+            "trigger": self.trigger,
+            "max_overrides": self.max_overrides,
+            "warmup": self.warmup,
+            "n_candidates": self.candidates,
+        }
         return {k: v for k, v in settings.items() if v is not None}
 
 
@@ -177,18 +204,55 @@ class ChainConfig:
 # branch points (`elegant.evaluation.rollouts.branch_step`): 50 rollouts from 25 starts branch at decisions 8 and 16,
 # the first two points of the benchmark's list (whose 100 rollouts per task use its first four).
 QUICKSTART = ChainConfig(
-    demos=100, chunk=8, policy_epochs=300, policy_successful_only=True, policy_obs_noise=0.1,
-    critic_rollouts=50, rollout_explore_at=(8, 16), critic_steps=4000, critic_gamma=0.995, critic_cql_weight=0.2,
-    critic_reward="elegant", critic_backup="dataset", critic_hidden=(64, 64), critic_weight_decay=0.1, critic_mc_weight=10.0,
-    critic_value_loss="bce", critic_explored_fraction=0.5,
-    trust_radius=1.5, threshold=2.0, threshold_mode="std", window=4, trigger="drop", warmup="steer", episodes=25,
+    demos=100,
+    chunk=8,
+    policy_epochs=300,
+    policy_successful_only=True,
+    policy_obs_noise=0.1,
+    critic_rollouts=50,
+    rollout_explore_at=(8, 16),
+    critic_steps=4000,
+    critic_gamma=0.995,
+    critic_cql_weight=0.2,
+    critic_reward="elegant",
+    critic_backup="dataset",
+    critic_hidden=(64, 64),
+    critic_weight_decay=0.1,
+    critic_mc_weight=10.0,
+    critic_value_loss="bce",
+    critic_explored_fraction=0.5,
+    trust_radius=1.5,
+    threshold=2.0,
+    threshold_mode="std",
+    window=4,
+    trigger="drop",
+    warmup="steer",
+    episodes=25,
 )
 
 # settings a chain directory may predate
-_ADDED_LATER = ("chunk", "window", "policy_successful_only", "policy_obs_noise", "critic_rollouts", "rollout_explore", "critic_backup",
-                "rollout_explore_at", "critic_hidden", "critic_weight_decay", "critic_mc_weight", "critic_value_loss",
-                "critic_explored_fraction", "trigger", "critic_members", "max_overrides", "warmup", "jiti_gate",
-                "candidates", "policy_act")
+_ADDED_LATER = (
+    "chunk",
+    "window",
+    "policy_successful_only",
+    "policy_obs_noise",
+    "critic_rollouts",
+    "rollout_explore",
+    "critic_backup",
+    "rollout_explore_at",
+    "critic_hidden",
+    "critic_weight_decay",
+    "critic_mc_weight",
+    "critic_value_loss",
+    "critic_explored_fraction",
+    "trigger",
+    "critic_members",
+    "max_overrides",
+    "warmup",
+    "jiti_gate",
+    "candidates",
+    "policy_act",
+)
 
 
 def _check_settings(out: str, cfg: ChainConfig) -> None:
@@ -198,9 +262,14 @@ def _check_settings(out: str, cfg: ChainConfig) -> None:
     # setting, policies had 5 components
     defaults = json.loads(json.dumps(asdict(ChainConfig())))
     added = {**{name: defaults[name] for name in _ADDED_LATER}, "policy_modes": 5}
-    changed = changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
+    changed = (
+        changed_fields(read_json_file(path, "chain settings"), settings, added=added) if os.path.exists(path) else []
+    )
     if changed:
-        raise UserInputError(f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose another --out")
+        raise UserInputError(
+            f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose "
+            "another --out"
+        )
     atomic_write(path, json.dumps(settings, indent=2))
 
 
@@ -214,14 +283,20 @@ def _init_split(cfg: ChainConfig) -> tuple[list[int] | None, list[int] | None]:
     specs = [spec for suite in cfg.suites for spec in task_specs(suite, cfg.tasks)]
     shared = min(spec.n_init_states for spec in specs)
     if shared < 2:
-        raise UserInputError(f"chain critic_rollouts: a task has {shared} init state, too few to keep rollout and evaluation starts apart")
+        raise UserInputError(
+            f"chain critic_rollouts: a task has {shared} init state, too few to keep rollout and evaluation starts "
+            "apart"
+        )
     return list(range(shared // 2)), list(range(shared // 2, shared))
 
 
 def _pooled(summaries: list[dict[str, Any]]) -> dict[str, float]:
     """Success, ESR and interventions over several suites' runs, weighted by their episode counts."""
     n = sum(s["episodes"] for s in summaries)
-    return {k: sum(s[k] * s["episodes"] for s in summaries) / n for k in ("success_rate", "esr", "interventions_per_episode")}
+    return {
+        k: sum(s[k] * s["episodes"] for s in summaries) / n
+        for k in ("success_rate", "esr", "interventions_per_episode")
+    }
 
 
 def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True, workers: int = 1) -> dict[str, Any]:
@@ -236,11 +311,11 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     from annotations import annotate_file
     from annotations.collect import collect_demos
     from critics import train_critic
+    from elegant.evaluation.rollouts import collect_rollouts
     from elegant.evaluation.runner import evaluate
     from elegant.intervention.gate import write_gate
     from elegant.policies import train_policy
     from elegant.reporting.report import compare_runs
-    from elegant.evaluation.rollouts import collect_rollouts
 
     cfg = config
     cfg.validate()
@@ -252,7 +327,11 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     rollouts = {s: os.path.join(out, f"rollouts_{s}.hdf5") for s in cfg.suites}
     annotated_rollouts = {s: os.path.join(out, f"annotated_rollouts_{s}.hdf5") for s in cfg.suites}
     policy_dir = os.path.join(out, "policy")
-    members = [{}] if cfg.critic_members == 1 else [{"seed": cfg.seed + k, "bootstrap": cfg.seed + k} for k in range(cfg.critic_members)]
+    members = (
+        [{}]
+        if cfg.critic_members == 1
+        else [{"seed": cfg.seed + k, "bootstrap": cfg.seed + k} for k in range(cfg.critic_members)]
+    )
     critic_dirs = [os.path.join(out, "critic" if len(members) == 1 else f"critic_{k + 1}") for k in range(len(members))]
     rollout_starts, eval_starts = _init_split(cfg)
     runs = {m: {s: os.path.join(out, f"eval_{m}_{s}") for s in cfg.suites} for m in cfg.modes}
@@ -264,29 +343,62 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     for suite in cfg.suites:
         if not os.path.exists(demos[suite]):
             say(f"demos: {cfg.demos} {cfg.quality}-quality expert episodes per task of {suite}")
-            collect_demos(suite, tasks, cfg.demos, demos[suite], quality=cfg.quality, seed=cfg.seed, resume=True, progress=progress,
-                          workers=workers)
+            collect_demos(
+                suite,
+                tasks,
+                cfg.demos,
+                demos[suite],
+                quality=cfg.quality,
+                seed=cfg.seed,
+                resume=True,
+                progress=progress,
+                workers=workers,
+            )
         if not os.path.exists(annotated[suite]):
             say(f"annotate {suite}: ITC labels by replaying the demos in the simulator")
             annotate_file(demos[suite], annotated[suite], resume=True, progress=progress, workers=workers)
     if not os.path.exists(os.path.join(policy_dir, "config.json")):
         say(f"train policy: BC with a GMM head, {cfg.policy_epochs} epochs")
-        train_policy(list(demos.values()), policy_dir, epochs=cfg.policy_epochs, seed=cfg.seed, chunk=cfg.chunk,
-                     resume=True, progress=progress, successful_only=cfg.policy_successful_only, obs_noise=cfg.policy_obs_noise,
-                     **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}))
+        train_policy(
+            list(demos.values()),
+            policy_dir,
+            epochs=cfg.policy_epochs,
+            seed=cfg.seed,
+            chunk=cfg.chunk,
+            resume=True,
+            progress=progress,
+            successful_only=cfg.policy_successful_only,
+            obs_noise=cfg.policy_obs_noise,
+            **({} if cfg.policy_modes is None else {"modes": cfg.policy_modes}),
+        )
     needs_critic = any(m != "base" for m in cfg.modes)  # base alone (the policy benchmark) only logs its scores
     critic_data = list(annotated.values())
     rollout_suites = cfg.suites if needs_critic and cfg.critic_rollouts else ()
     for suite in rollout_suites:
         if not os.path.exists(rollouts[suite]):
             if cfg.rollout_explore_at is not None:
-                explore, how = {"explore_at": list(cfg.rollout_explore_at)}, f"branching at one of steps {list(cfg.rollout_explore_at)}"
+                explore, how = (
+                    {"explore_at": list(cfg.rollout_explore_at)},
+                    f"branching at one of steps {list(cfg.rollout_explore_at)}",
+                )
             else:
                 explore, how = {"explore": cfg.rollout_explore}, f"exploring at {cfg.rollout_explore:.0%} of decisions"
             say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, {how}")
-            collect_rollouts(suite, tasks, policy_dir, cfg.critic_rollouts, rollouts[suite], **explore,
-                             trust_radius=cfg.trust_radius, init_states=rollout_starts, seed=cfg.seed, max_steps=cfg.max_steps,
-                             resume=True, progress=progress, workers=workers)
+            collect_rollouts(
+                suite,
+                tasks,
+                policy_dir,
+                cfg.critic_rollouts,
+                rollouts[suite],
+                **explore,
+                trust_radius=cfg.trust_radius,
+                init_states=rollout_starts,
+                seed=cfg.seed,
+                max_steps=cfg.max_steps,
+                resume=True,
+                progress=progress,
+                workers=workers,
+            )
         if not os.path.exists(annotated_rollouts[suite]):
             say(f"annotate the rollouts of {suite}")
             annotate_file(rollouts[suite], annotated_rollouts[suite], resume=True, progress=progress, workers=workers)
@@ -305,9 +417,23 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
             validation = {}
             for mode in validated:
                 validation[mode] = os.path.join(out, f"validate_{mode}_{suite}")
-                evaluate(suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes, seed=cfg.seed, out=validation[mode],
-                         resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode), max_steps=cfg.max_steps,
-                         init_states=rollout_starts, workers=workers, policy_act=cfg.policy_act)
+                evaluate(
+                    suite,
+                    tasks,
+                    policy_dir,
+                    critic,
+                    mode=mode,
+                    episodes=cfg.episodes,
+                    seed=cfg.seed,
+                    out=validation[mode],
+                    resume=True,
+                    progress=progress,
+                    jiti_kwargs=cfg.jiti_settings(mode),
+                    max_steps=cfg.max_steps,
+                    init_states=rollout_starts,
+                    workers=workers,
+                    policy_act=cfg.policy_act,
+                )
             gates[suite] = os.path.join(out, f"gate_{suite}.json")
             write_gate(validation["base"], validation["jiti"], gates[suite], always_run=validation.get("always"))
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
@@ -315,9 +441,21 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
         for suite in cfg.suites:
             say(f"evaluate {mode} on {suite}: {cfg.episodes} episodes per task")
             summaries[mode][suite] = evaluate(
-                suite, tasks, policy_dir, critic, mode=mode, episodes=cfg.episodes,
-                seed=cfg.seed, out=runs[mode][suite], resume=True, progress=progress, jiti_kwargs=cfg.jiti_settings(mode),
-                max_steps=cfg.max_steps, init_states=eval_starts, gate=gates[suite] if mode == "jiti" else None, workers=workers,
+                suite,
+                tasks,
+                policy_dir,
+                critic,
+                mode=mode,
+                episodes=cfg.episodes,
+                seed=cfg.seed,
+                out=runs[mode][suite],
+                resume=True,
+                progress=progress,
+                jiti_kwargs=cfg.jiti_settings(mode),
+                max_steps=cfg.max_steps,
+                init_states=eval_starts,
+                gate=gates[suite] if mode == "jiti" else None,
+                workers=workers,
                 policy_act=cfg.policy_act,
             )
     report_dir = os.path.join(out, "report")
@@ -330,7 +468,12 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
     return result
 
 
-def quickstart(out: str = "runs/quickstart", config: ChainConfig | None = None, progress: bool = True, workers: int = 1,
-               **overrides: Any) -> dict[str, Any]:
+def quickstart(
+    out: str = "runs/quickstart",
+    config: ChainConfig | None = None,
+    progress: bool = True,
+    workers: int = 1,
+    **overrides: Any,
+) -> dict[str, Any]:
     """The README's first command: the chain at `QUICKSTART` sizes (fields replaced by `overrides`)."""
     return run_chain(out, replace(config or QUICKSTART, **overrides), progress=progress, workers=workers)

@@ -12,6 +12,7 @@ At each grasp the gripper's approach axis must lie within `approach_tolerance` o
 upright object along or across its up axis (it is round about that axis), for others any of the three
 body axes (boxes are grasped square to a face).
 """
+
 from __future__ import annotations
 
 import math

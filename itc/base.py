@@ -5,6 +5,7 @@ settle phase) and remembers what it needs (initial poses, which sub-goals alread
 sees the state after each step and returns why the step violates the criterion (empty when kept). The
 reasons name the objects and the measured value against its threshold, so a label can be audited.
 """
+
 from __future__ import annotations
 
 from abc import ABC, abstractmethod

@@ -12,6 +12,7 @@
   forces sampled at 20 Hz miss the impact peak, the approach speed does not). Objects still settling
   from the init state are not judged until they have come to rest once.
 """
+
 from __future__ import annotations
 
 from itc.base import Constraint, cm
@@ -94,12 +95,15 @@ class CollisionFree(Constraint):
                     # Already fallen further than allowed, in the air: judge now, since LIBERO may end
                     # the episode (goal reached mid-fall) before the object lands.
                     del self._falling[name]
-                    reasons.append(f"dropped {name}: in free fall over {cm(start - z)} (limit {cm(self.params.drop_height)})")
+                    reasons.append(
+                        f"dropped {name}: in free fall over {cm(start - z)} (limit {cm(self.params.drop_height)})"
+                    )
                 continue
             del self._falling[name]
             if start - z > self.params.drop_height:
                 reasons.append(
-                    f"dropped {name} from {cm(start - z)} onto {', '.join(sorted(landed_on))} (limit {cm(self.params.drop_height)})"
+                    f"dropped {name} from {cm(start - z)} onto {', '.join(sorted(landed_on))} (limit "
+                    f"{cm(self.params.drop_height)})"
                 )
         return reasons
 

@@ -4,6 +4,7 @@ Each constraint asks for contacts, the held object, poses and predicates; asking
 step and caching the answers here keeps the monitor's cost to one contact pass plus a few array reads
 (the budget is 10% of an env step).
 """
+
 from __future__ import annotations
 
 import math
@@ -50,12 +51,12 @@ class RestTracker:
     below `speed`, which a flying object passing the top of its arc does not fake.
     """
 
-    def __init__(self, ctx: "StepContext", names: tuple[str, ...], speed: float, steps: int) -> None:
+    def __init__(self, ctx: StepContext, names: tuple[str, ...], speed: float, steps: int) -> None:
         self.names, self.speed, self.steps = names, speed, steps
         self._count = {n: steps if ctx.speed(n) < speed else 0 for n in names}  # the env has just settled
         self.settled: set[str] = {n for n in names if self._count[n] >= steps}
 
-    def update(self, ctx: "StepContext") -> None:
+    def update(self, ctx: StepContext) -> None:
         for name in self.names:
             self._count[name] = self._count[name] + 1 if ctx.speed(name) < self.speed else 0
             if self._count[name] >= self.steps:

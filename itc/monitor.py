@@ -12,6 +12,7 @@ Step t judges the transition (s_t, a_t, s_t+1) from the simulator state after th
 reward is 1 when all four criteria are kept; an episode is an elegant success when it succeeds and no
 window of `segment_length` frames violates any criterion.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -43,7 +44,11 @@ class StepResult:
         return float(all(self.kept.values()))
 
     def to_info(self) -> dict[str, Any]:
-        return {"step": self.step, "kept": dict(self.kept), "reasons": {k: list(v) for k, v in self.reasons.items() if v}}
+        return {
+            "step": self.step,
+            "kept": dict(self.kept),
+            "reasons": {k: list(v) for k, v in self.reasons.items() if v},
+        }
 
 
 @dataclass(frozen=True)
@@ -58,7 +63,7 @@ class EpisodeVerdict:
     segment_length: int
 
     @classmethod
-    def from_steps(cls, success: bool, steps: Mapping[str, np.ndarray], events, segment_length: int) -> "EpisodeVerdict":
+    def from_steps(cls, success: bool, steps: Mapping[str, np.ndarray], events, segment_length: int) -> EpisodeVerdict:
         steps = {c: np.asarray(steps[c], dtype=bool) for c in CRITERIA}
         segments = {c: segment_labels(steps[c], segment_length) for c in CRITERIA}
         return cls(bool(success), steps, segments, tuple(events), int(segment_length))

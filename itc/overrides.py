@@ -12,6 +12,7 @@ the fields to replace, for example::
 Every field is validated against the task (entity names, sub-goal indices, parameter names), and a bad
 one is refused with the file, the field and what was expected.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -42,14 +43,19 @@ def _entities(path: str, key: str, value: Any, known: tuple[str, ...]) -> tuple[
 
 
 def _order(path: str, value: Any, n_subgoals: int) -> tuple[tuple[int, int], ...]:
-    expected = f"{path}: field 'order' must be a list of [i, j] pairs of sub-goal indices 0..{n_subgoals - 1} with i != j"
+    expected = (
+        f"{path}: field 'order' must be a list of [i, j] pairs of sub-goal indices 0..{n_subgoals - 1} with i != j"
+    )
     if not isinstance(value, list):
         raise UserInputError(expected)
     pairs = []
     for pair in value:
         ok = (
-            isinstance(pair, list) and len(pair) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in pair)
-            and all(0 <= v < n_subgoals for v in pair) and pair[0] != pair[1]
+            isinstance(pair, list)
+            and len(pair) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in pair)
+            and all(0 <= v < n_subgoals for v in pair)
+            and pair[0] != pair[1]
         )
         if not ok:
             raise UserInputError(f"{expected}; got {pair!r}")
@@ -80,7 +86,9 @@ def parse_override(path: str, spec: ConstraintSpec, scene: Scene) -> dict[str, A
                 raise UserInputError(f"{path}: field 'params' must be a mapping of ITC parameter names to numbers")
             ITCParams.from_dict(value, source=f"{path}: field 'params'")
             if "segment_length" in value:
-                raise UserInputError(f"{path}: field 'params': segment_length is one value per annotated file, not per task")
+                raise UserInputError(
+                    f"{path}: field 'params': segment_length is one value per annotated file, not per task"
+                )
             changes[key] = dict(value)
         else:
             raise UserInputError(f"{path}: unknown field {key!r}; expected one of: {', '.join(FIELDS)}")

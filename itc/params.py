@@ -6,6 +6,7 @@ by editing code. The defaults were calibrated on the real LIBERO scenes (see the
 scripted execution keeps every criterion, and the sloppy behaviours the scripted experts' quality knobs
 produce (collide, drop, misplace, tilt, wrong order) break the matching one.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -105,7 +106,7 @@ class ITCParams:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
-    def updated(self, changes: Mapping[str, Any], source: str = "ITC parameters") -> "ITCParams":
+    def updated(self, changes: Mapping[str, Any], source: str = "ITC parameters") -> ITCParams:
         """A copy with some fields changed; unknown names or non-numbers are refused naming `source`."""
         fields = {f.name: f for f in dataclasses.fields(self)}
         clean: dict[str, Any] = {}
@@ -124,5 +125,5 @@ class ITCParams:
         return dataclasses.replace(self, **clean)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | None, source: str = "ITC parameters") -> "ITCParams":
+    def from_dict(cls, data: Mapping[str, Any] | None, source: str = "ITC parameters") -> ITCParams:
         return cls().updated(data or {}, source)

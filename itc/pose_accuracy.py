@@ -16,6 +16,7 @@ table) turns its sub-goal true as it crosses the region's edge, so at that insta
 edge: it is judged like a release instead, once at rest. LIBERO ends a single-goal episode right there,
 so it is then never judged, and its placement is the goal predicate itself (LIBERO's region test).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -106,15 +107,21 @@ class PoseAccuracy(Constraint):
         local = axes.T @ (ctx.position(placement.obj) - centre)[:2]
         ok = float(np.sum((local / tol) ** 2)) <= 1.0
         distance = cm(float(np.linalg.norm(local)))
-        return ok, f"{distance} from its centre (offset {cm(local[0])}, {cm(local[1])}; allowed {cm(tol[0])} x {cm(tol[1])})"
+        return (
+            ok,
+            f"{distance} from its centre (offset {cm(local[0])}, {cm(local[1])}; allowed {cm(tol[0])} x {cm(tol[1])})",
+        )
 
     def _near(self, ctx: StepContext, placement: Placement, release_xy: np.ndarray | None) -> bool:
         """Whether a release was a placement attempt at the target: it rests, or was let go, near it."""
         centre, _, _ = self._centre(ctx, placement)
         points = [ctx.position(placement.obj)[:2]] + ([release_xy] if release_xy is not None else [])
         close = min(float(np.linalg.norm(p - centre[:2])) for p in points) <= self.params.placement_radius
-        return close or (placement.target_entity is not None and placement.target_entity in ctx.touches(placement.obj)) \
+        return (
+            close
+            or (placement.target_entity is not None and placement.target_entity in ctx.touches(placement.obj))
             or self._beside(ctx, placement)
+        )
 
     def _beside(self, ctx: StepContext, placement: Placement) -> bool:
         """Whether the object rests next to its movable target (xy bounding boxes within `beside_margin`).

@@ -1,4 +1,5 @@
 """The four criteria by name, in the order every label array and file uses."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence

@@ -3,6 +3,7 @@
 LIBERO-Elegant labels an episode in windows of 25 frames: a window violates a criterion if any step in
 it does. The same window arithmetic serves the monitor, the annotated files and human label CSVs.
 """
+
 from __future__ import annotations
 
 import numpy as np

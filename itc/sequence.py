@@ -12,6 +12,7 @@ target's centre; libero_goal/5: the cream cheese stands where the plate must go)
 the task is to succeed: it may be moved, not tipped over.
 Each disturbance is reported once, at the step it happens.
 """
+
 from __future__ import annotations
 
 import math
@@ -113,7 +114,9 @@ class SequenceIntegrity(Constraint):
             if np.any(delta > limits):
                 if name not in self._moved_fixtures:
                     self._moved_fixtures.add(name)
-                    reasons.append(f"moved {name}, which the task does not name (joint change {float(delta.max()):.3f})")
+                    reasons.append(
+                        f"moved {name}, which the task does not name (joint change {float(delta.max()):.3f})"
+                    )
             else:
                 self._moved_fixtures.discard(name)
         return reasons

@@ -9,6 +9,7 @@ instruction states them), corrected by physical dependencies (a drawer is opened
 in and closed after; a stack is built before it is moved) and relaxed where the instruction says "both".
 A YAML file per task can replace any of these fields (see `itc.overrides`).
 """
+
 from __future__ import annotations
 
 import functools
@@ -24,7 +25,20 @@ from itc.params import ITCParams
 # SimView's names for the static scene that objects stand on (LIBERO tables, the floor, the arena).
 SURFACES = ("table", "arena")
 # Object categories that stand upright and must stay so (matched as substrings of the BDDL category).
-UPRIGHT_KEYWORDS = ("bowl", "mug", "cup", "bottle", "ketchup", "sauce", "soup", "dressing", "milk", "juice", "moka_pot", "ramekin")
+UPRIGHT_KEYWORDS = (
+    "bowl",
+    "mug",
+    "cup",
+    "bottle",
+    "ketchup",
+    "sauce",
+    "soup",
+    "dressing",
+    "milk",
+    "juice",
+    "moka_pot",
+    "ramekin",
+)
 # Upright objects too tall for a drawer and bottles bound for a wine rack can only reach their goal lying
 # down, so the upright check would flag every success there.
 TALL_KEYWORDS = ("bottle", "ketchup", "dressing", "milk", "juice")
@@ -95,7 +109,8 @@ class ConstraintSpec:
             "subgoals": [format_predicate(p) for p in self.subgoals],
             "order": [[i, j] for i, j in self.order],
             "order_readable": [
-                f"{format_predicate(self.subgoals[i])} before {format_predicate(self.subgoals[j])}" for i, j in self.order
+                f"{format_predicate(self.subgoals[i])} before {format_predicate(self.subgoals[j])}"
+                for i, j in self.order
             ],
             "placements": [
                 {"object": p.obj, "target": p.target, "target_entity": p.target_entity, "region": p.target_is_region}
@@ -149,7 +164,7 @@ class Scene:
         return self.objects.get(name) or self.fixtures.get(name, "")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def load_scene(bddl_file: str) -> Scene:
     libero_modules()  # headless defaults and quiet robosuite import come first
     from libero.libero.envs.bddl_utils import robosuite_parse_problem
@@ -208,7 +223,9 @@ def _lies_at_goal(scene: Scene, obj: str, placements: tuple[Placement, ...]) -> 
         return False
     for p in placements:
         if p.obj == obj and p.target_entity is not None:
-            into_drawer = p.target_is_region and "cabinet" in scene.category(p.target_entity) and _DRAWER.search(p.target)
+            into_drawer = (
+                p.target_is_region and "cabinet" in scene.category(p.target_entity) and _DRAWER.search(p.target)
+            )
             if into_drawer or "wine_rack" in scene.category(p.target_entity):
                 return True
     return False
@@ -236,9 +253,13 @@ def derive_spec(task_or_env, overrides_dir: str | None = None) -> ConstraintSpec
         if p[0] in PLACEMENT_PREDICATES and p[1] in scene.objects
     )
     manipulated = _unique(p.obj for p in placements)
-    targets = _unique([p.target_entity for p in placements] + [scene.owner(p[1]) for p in goals if p[0] in ARTICULATION_PREDICATES])
+    targets = _unique(
+        [p.target_entity for p in placements] + [scene.owner(p[1]) for p in goals if p[0] in ARTICULATION_PREDICATES]
+    )
     supports = _unique(
-        scene.owner(p[2]) for p in scene.initial_state if p[0] in PLACEMENT_PREDICATES and len(p) == 3 and p[1] in manipulated
+        scene.owner(p[2])
+        for p in scene.initial_state
+        if p[0] in PLACEMENT_PREDICATES and len(p) == 3 and p[1] in manipulated
     )
     named = set(manipulated) | set(targets)
     spec = ConstraintSpec(
@@ -255,7 +276,8 @@ def derive_spec(task_or_env, overrides_dir: str | None = None) -> ConstraintSpec
         distractors=tuple(o for o in scene.objects if o not in named),
         idle_fixtures=tuple(f for f in scene.entities if f in scene.fixtures and f not in named and f not in supports),
         upright=tuple(
-            o for o in scene.objects
+            o
+            for o in scene.objects
             if any(k in scene.category(o) for k in UPRIGHT_KEYWORDS) and not _lies_at_goal(scene, o, placements)
         ),
     )
@@ -269,4 +291,3 @@ def derive_spec(task_or_env, overrides_dir: str | None = None) -> ConstraintSpec
 def describe_spec(suite: str, task: int | str, overrides_dir: str | None = None) -> dict[str, Any]:
     """The printable spec of one task, for the CLI (`elegant itc-spec SUITE TASK`)."""
     return derive_spec(get_task(suite, task), overrides_dir).to_dict()
-

@@ -5,6 +5,7 @@ and `elegance_reward`; when the episode ends (terminated or truncated) also `itc
 elegant, violated criteria, window labels, violation steps and events). The task reward is unchanged,
 so the wrapper can sit under any training or evaluation loop.
 """
+
 from __future__ import annotations
 
 from typing import Any

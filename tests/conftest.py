@@ -1,4 +1,5 @@
 """Shared fixtures: one thread for torch, and real LIBERO envs built once per module where reused."""
+
 from __future__ import annotations
 
 import os

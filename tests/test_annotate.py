@@ -1,4 +1,5 @@
 """Annotation of demo files by replaying stored states, human label CSVs, and their refusals."""
+
 from __future__ import annotations
 
 import csv
@@ -8,8 +9,15 @@ import numpy as np
 import pytest
 
 from annotations import (
-    CRITERIA, Demo, DemoFile, DemoWriter, annotate_file, apply_human_labels, discounted_return_to_go,
-    export_segment_labels, read_human_labels,
+    CRITERIA,
+    Demo,
+    DemoFile,
+    DemoWriter,
+    annotate_file,
+    apply_human_labels,
+    discounted_return_to_go,
+    export_segment_labels,
+    read_human_labels,
 )
 from base_suites import UserInputError, make_env
 from itc import EpisodeVerdict, ITCMonitor, num_windows
@@ -27,12 +35,24 @@ def write_csv(path, rows, header=("demo", "start_frame", "end_frame", "criterion
 
 # ---- human label CSVs (no simulator) -----------------------------------------------------------
 def test_human_labels_are_read_per_window(tmp_path):
-    path = write_csv(tmp_path / "l.csv", [
-        ["demo_0", 0, 49, "collision", "violated"], ["demo_0", 50, 59, "alignment", "1"], [], ["demo_1", 25, 29, "sequence", "0"],
-    ])
+    path = write_csv(
+        tmp_path / "l.csv",
+        [
+            ["demo_0", 0, 49, "collision", "violated"],
+            ["demo_0", 50, 59, "alignment", "1"],
+            [],
+            ["demo_1", 25, 29, "sequence", "0"],
+        ],
+    )
     labels = read_human_labels(path, LENGTHS, 25)
     first, last = labels["demo_0"]
-    assert (first.first_window, first.last_window, first.criterion, first.kept, first.row) == (0, 1, "collision", False, 2)
+    assert (first.first_window, first.last_window, first.criterion, first.kept, first.row) == (
+        0,
+        1,
+        "collision",
+        False,
+        2,
+    )
     assert (last.first_window, last.last_window, last.kept) == (2, 2, True)
     assert labels["demo_1"][0].row == 5 and not labels["demo_1"][0].kept
 
@@ -70,7 +90,9 @@ def test_human_labels_replace_window_and_step_labels(tmp_path):
     steps["collision"][30] = False
     verdict = EpisodeVerdict.from_steps(True, steps, [(30, "collision", "dropped")], 25)
     assert verdict.violated == ["collision"] and not verdict.elegant
-    path = write_csv(tmp_path / "l.csv", [["demo_0", 25, 49, "collision", "kept"], ["demo_0", 50, 59, "alignment", "violated"]])
+    path = write_csv(
+        tmp_path / "l.csv", [["demo_0", 25, 49, "collision", "kept"], ["demo_0", 50, 59, "alignment", "violated"]]
+    )
     relabelled = apply_human_labels(verdict, read_human_labels(path, LENGTHS, 25)["demo_0"])
     assert relabelled.segments["collision"].tolist() == [True, True, True]
     assert relabelled.steps["collision"].all()
@@ -112,12 +134,27 @@ def recorded(tmp_path_factory):
     for run, _ in runs:
         n = len(run.actions)
         attrs = {
-            "suite": "libero_goal", "task_index": 6, "task_name": env.task.name, "language_instruction": env.instruction,
-            "init_state_index": 0, "seed": 0, "knobs": {}, "expert_version": "test-scripted", "success": run.success,
+            "suite": "libero_goal",
+            "task_index": 6,
+            "task_name": env.task.name,
+            "language_instruction": env.instruction,
+            "init_state_index": 0,
+            "seed": 0,
+            "knobs": {},
+            "expert_version": "test-scripted",
+            "success": run.success,
             "perturbation": [],
         }
-        demo = Demo("demo", np.array(run.actions), np.array(run.states), np.array(run.obs), np.array(run.next_obs),
-                    np.array(run.rewards), np.eye(1, n, n - 1, dtype=np.uint8)[0], attrs)
+        demo = Demo(
+            "demo",
+            np.array(run.actions),
+            np.array(run.states),
+            np.array(run.obs),
+            np.array(run.next_obs),
+            np.array(run.rewards),
+            np.eye(1, n, n - 1, dtype=np.uint8)[0],
+            attrs,
+        )
         writer.append(demo, env.metadata["state_layout"])
     writer.finish()
     env.close()
@@ -160,7 +197,9 @@ def test_annotate_file_replays_states_into_labels(recorded, tmp_path):
     assert rows == sum(num_windows(n, 25) for n in lengths.values()) * len(CRITERIA)
     back = read_human_labels(exported, lengths, 25)
     assert sum(len(v) for v in back.values()) == rows
-    assert all(segments[name][lab.criterion][lab.first_window] == lab.kept for name, labs in back.items() for lab in labs)
+    assert all(
+        segments[name][lab.criterion][lab.first_window] == lab.kept for name, labs in back.items() for lab in labs
+    )
 
 
 @pytest.mark.sim
@@ -178,7 +217,9 @@ def test_annotation_refuses_foreign_states_and_resumes_after_the_fix(recorded, t
 
     source_path, out = str(tmp_path / "in.hdf5"), tmp_path / "out.hdf5"
     write(source_path, truncate_second=True)
-    with pytest.raises(UserInputError, match="data/demo_1/states has shape .* the MuJoCo state size of task libero_goal/6"):
+    with pytest.raises(
+        UserInputError, match="data/demo_1/states has shape .* the MuJoCo state size of task libero_goal/6"
+    ):
         annotate_file(source_path, str(out), progress=False)
     assert not out.exists() and (tmp_path / "out.hdf5.partial").exists()
     write(source_path, truncate_second=False)
@@ -220,11 +261,34 @@ def test_a_replay_keeps_the_success_libero_reported_when_the_goal_contact_was_a_
     assert record["success"] and not env.goal_reached(), "the touchdown this test is about no longer happens"
     path = str(tmp_path / "demos.hdf5")
     writer = DemoWriter(path, {"env_args": {"env_name": "libero_goal"}, "language_instruction": env.instruction})
-    attrs = {"suite": "libero_goal", "task_index": 4, "task_name": env.task.name, "language_instruction": env.instruction,
-             "init_state_index": 2, "seed": 0, "knobs": {}, "expert_version": "test", "success": True, "perturbation": [],
-             "reset_seed": 2, "fixture_layout": env.fixture_layout()}
-    writer.append(Demo("demo", record["actions"], record["states"], record["obs"], record["next_obs"], record["rewards"],
-                       record["dones"], attrs, final_state=record["final_state"]), env.metadata["state_layout"])
+    attrs = {
+        "suite": "libero_goal",
+        "task_index": 4,
+        "task_name": env.task.name,
+        "language_instruction": env.instruction,
+        "init_state_index": 2,
+        "seed": 0,
+        "knobs": {},
+        "expert_version": "test",
+        "success": True,
+        "perturbation": [],
+        "reset_seed": 2,
+        "fixture_layout": env.fixture_layout(),
+    }
+    writer.append(
+        Demo(
+            "demo",
+            record["actions"],
+            record["states"],
+            record["obs"],
+            record["next_obs"],
+            record["rewards"],
+            record["dones"],
+            attrs,
+            final_state=record["final_state"],
+        ),
+        env.metadata["state_layout"],
+    )
     writer.finish()
     env.close()
     summary = annotate_file(path, str(tmp_path / "annotated.hdf5"), progress=False)

@@ -1,11 +1,12 @@
 """rank-check: a critic's advantage of a rollout's explored alternative over the policy's plan, against the outcome."""
+
 import h5py
 import numpy as np
 import pytest
+from test_critic_data import write_annotated
 
 from base_suites.runtime.errors import UserInputError
 from elegant.diagnostics.branch_ranking import branch_ranking
-from test_critic_data import write_annotated
 
 EXPLORED_AT = 10
 ELEGANT = {0, 1, 2, 3}
@@ -57,11 +58,21 @@ def branch_file(tmp_path):
 def test_the_advantage_ranks_the_explored_alternatives_by_their_outcome(tmp_path):
     path = branch_file(tmp_path)
     result = branch_ranking(path, StatePolicy(), FirstDimCritic())
-    assert result["all"] == {"episodes": 6, "skipped": 2, "elegant_rate": 4 / 6, "advantage_auroc": 1.0, "q_auroc": 1.0,
-                             "prefers_explored": 4 / 6}
+    assert result["all"] == {
+        "episodes": 6,
+        "skipped": 2,
+        "elegant_rate": 4 / 6,
+        "advantage_auroc": 1.0,
+        "q_auroc": 1.0,
+        "prefers_explored": 4 / 6,
+    }
     task0, task1 = result["tasks"]["libero_object/0"], result["tasks"]["libero_object/1"]
     assert (task0["episodes"], task0["advantage_auroc"]) == (4, 1.0)
-    assert (task1["episodes"], task1["skipped"], task1["advantage_auroc"]) == (2, 2, None)  # both elegant: nothing to separate
+    assert (task1["episodes"], task1["skipped"], task1["advantage_auroc"]) == (
+        2,
+        2,
+        None,
+    )  # both elegant: nothing to separate
     backwards = branch_ranking(path, StatePolicy(), FirstDimCritic(sign=-1.0))["all"]
     assert (backwards["advantage_auroc"], backwards["prefers_explored"]) == (0.0, 2 / 6)
 

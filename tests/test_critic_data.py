@@ -2,6 +2,7 @@
 
 `write_annotated` (random arrays in the documented layout) is also used by tests/test_critic_train.py.
 """
+
 from __future__ import annotations
 
 import h5py
@@ -31,9 +32,19 @@ def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
     return out
 
 
-def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9, labelled: bool = True,
-                    lengths: tuple[int, int] = (30, 60), corrupt_return: bool = False, violation_rate: float = 0.01,
-                    violate_at: dict[int, int] | None = None, explored_at: dict[int, list] | None = None) -> str:
+def write_annotated(
+    path,
+    *,
+    n_demos: int = 6,
+    seed: int = 0,
+    gamma: float = 0.9,
+    labelled: bool = True,
+    lengths: tuple[int, int] = (30, 60),
+    corrupt_return: bool = False,
+    violation_rate: float = 0.01,
+    violate_at: dict[int, int] | None = None,
+    explored_at: dict[int, list] | None = None,
+) -> str:
     """An annotated file of two libero_object tasks with random states, actions and ITC labels.
 
     Demo i belongs to task i % 2 and succeeds when i % 3 != 2; actions use [-0.5, 0.5] in every dimension.
@@ -41,7 +52,11 @@ def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9
     `explored_at` {demo: steps} records those steps as explored decisions, as `elegant rollouts` does.
     """
     rng = np.random.default_rng(seed)
-    attrs = {"annotation": {"schema_version": 1, "gamma": gamma, "segment_length": SEGMENT_LENGTH, "itc_params": {}}} if labelled else {}
+    attrs = (
+        {"annotation": {"schema_version": 1, "gamma": gamma, "segment_length": SEGMENT_LENGTH, "itc_params": {}}}
+        if labelled
+        else {}
+    )
     writer = DemoWriter(str(path), attrs)
     for i in range(n_demos):
         task = i % 2
@@ -54,10 +69,20 @@ def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9
         dones = np.zeros(t, np.uint8)
         dones[-1] = 1
         demo = Demo(
-            name="", actions=rng.uniform(-0.5, 0.5, size=(t, 7)), states=rng.normal(size=(t, 4)),
-            obs=states[:-1], next_obs=states[1:], rewards=rewards, dones=dones,
-            attrs={"suite": "libero_object", "task_index": task, "task_name": f"task {task}", "success": success,
-                   **({"explored_steps": explored_at[i]} if i in (explored_at or {}) else {})},
+            name="",
+            actions=rng.uniform(-0.5, 0.5, size=(t, 7)),
+            states=rng.normal(size=(t, 4)),
+            obs=states[:-1],
+            next_obs=states[1:],
+            rewards=rewards,
+            dones=dones,
+            attrs={
+                "suite": "libero_object",
+                "task_index": task,
+                "task_name": f"task {task}",
+                "success": success,
+                **({"explored_steps": explored_at[i]} if i in (explored_at or {}) else {}),
+            },
         )
         if labelled:
             itc = {c: rng.random(t) >= violation_rate for c in CRITERIA}
@@ -65,9 +90,14 @@ def write_annotated(path, *, n_demos: int = 6, seed: int = 0, gamma: float = 0.9
                 itc["collision"][violate_at[i]] = False
             n_seg = -(-t // SEGMENT_LENGTH)
             demo.itc = itc
-            demo.itc_segments = {c: np.array([itc[c][k * SEGMENT_LENGTH:(k + 1) * SEGMENT_LENGTH].all() for k in range(n_seg)]) for c in CRITERIA}
+            demo.itc_segments = {
+                c: np.array([itc[c][k * SEGMENT_LENGTH : (k + 1) * SEGMENT_LENGTH].all() for k in range(n_seg)])
+                for c in CRITERIA
+            }
             demo.elegance_reward = np.logical_and.reduce([itc[c] for c in CRITERIA]).astype(np.float32)
-            demo.mc_return = discounted_returns(demo.elegance_reward, gamma).astype(np.float32) + (0.5 if corrupt_return else 0.0)
+            demo.mc_return = discounted_returns(demo.elegance_reward, gamma).astype(np.float32) + (
+                0.5 if corrupt_return else 0.0
+            )
         writer.append(demo, layout)
     return writer.finish()
 
@@ -80,8 +110,11 @@ def annotated(tmp_path) -> str:
 def read_raw(path: str) -> list[dict]:
     with h5py.File(path, "r") as f:
         names = sorted((n for n in f["data"] if n.startswith("demo_")), key=lambda n: int(n.split("_")[1]))
-        return [{k: f["data"][n][k][()] for k in ("actions", "obs/state", "next_obs/state", "elegance_reward", "rewards")}
-                | {"task": int(f["data"][n].attrs["task_index"])} for n in names]
+        return [
+            {k: f["data"][n][k][()] for k in ("actions", "obs/state", "next_obs/state", "elegance_reward", "rewards")}
+            | {"task": int(f["data"][n].attrs["task_index"])}
+            for n in names
+        ]
 
 
 def test_transitions_follow_the_documented_layout(annotated):
@@ -106,8 +139,8 @@ def test_transitions_follow_the_documented_layout(annotated):
     raw_obs = data.normalization.obs_mean + obs[:, :width] * data.normalization.obs_std
     d0 = raw[0]["obs/state"]
     assert np.allclose(raw_obs[: len(d0), : d0.shape[1]], d0, atol=1e-5)
-    assert np.allclose(raw_obs[: len(d0), d0.shape[1]:], 0, atol=1e-5)  # padding of the narrower task
-    assert np.allclose(td["next", "observation"][: len(d0) - 1].numpy(), obs[1: len(d0)], atol=1e-6)
+    assert np.allclose(raw_obs[: len(d0), d0.shape[1] :], 0, atol=1e-5)  # padding of the narrower task
+    assert np.allclose(td["next", "observation"][: len(d0) - 1].numpy(), obs[1 : len(d0)], atol=1e-6)
 
     # the dataset's next action: the demo's following step's, its own at the demo's last step
     ends = np.cumsum([len(d["actions"]) for d in raw]) - 1
@@ -119,7 +152,9 @@ def test_transitions_follow_the_documented_layout(annotated):
     actions = td["action"].numpy()
     assert np.allclose(actions.min(0), -1) and np.allclose(actions.max(0), 1)
     raw_actions = np.concatenate([d["actions"] for d in raw])
-    assert np.allclose(data.normalization.action_low, raw_actions.min(0)) and np.allclose(data.normalization.action_high, raw_actions.max(0))
+    assert np.allclose(data.normalization.action_low, raw_actions.min(0)) and np.allclose(
+        data.normalization.action_high, raw_actions.max(0)
+    )
 
 
 def test_episode_ends_and_returns(annotated):
@@ -135,9 +170,9 @@ def test_episode_ends_and_returns(annotated):
     # Training reward: the violation penalty r - 1; its returns floor Cal-QL only for successful demos.
     penalty = [d["elegance_reward"] - 1.0 for d in raw]
     assert np.allclose(td["next", "reward"].squeeze(-1).numpy(), np.concatenate(penalty))
-    expected = np.concatenate([
-        discounted_returns(p, 0.9) if ok else np.full(len(p), NO_FLOOR) for p, ok in zip(penalty, success)
-    ])
+    expected = np.concatenate(
+        [discounted_returns(p, 0.9) if ok else np.full(len(p), NO_FLOOR) for p, ok in zip(penalty, success)]
+    )
     assert np.allclose(td["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
     last_penalty = np.array([p[-1] for p in penalty])
     assert np.allclose(td["mc_return"].squeeze(-1).numpy()[ends[success]], last_penalty[success])
@@ -148,10 +183,12 @@ def test_critic_discount_can_differ_from_the_annotations(annotated):
     data = load_transitions([annotated], gamma=0.5)
     raw = read_raw(annotated)
     success = np.array([d["rewards"][-1] > 0 for d in raw])
-    expected = np.concatenate([
-        discounted_returns(d["elegance_reward"] - 1.0, 0.5) if ok else np.full(len(d["actions"]), NO_FLOOR)
-        for d, ok in zip(raw, success)
-    ])
+    expected = np.concatenate(
+        [
+            discounted_returns(d["elegance_reward"] - 1.0, 0.5) if ok else np.full(len(d["actions"]), NO_FLOOR)
+            for d, ok in zip(raw, success)
+        ]
+    )
     assert data.gamma == 0.5
     assert np.allclose(data.transitions["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
     with pytest.raises(UserInputError, match="gamma must lie in"):
@@ -172,7 +209,9 @@ def test_segment_reward_penalises_every_step_of_a_violating_window(annotated):
     # the per-step form penalises fewer steps: only those that violate (random labels break ~4% of steps)
     steps = load_transitions([annotated]).transitions["next", "reward"].squeeze(-1).numpy()
     assert (steps < 0).sum() < (reward < 0).sum() and np.all(reward[steps < 0] < 0)
-    expected = np.concatenate([discounted_returns(p, 0.9) if ok else np.full(len(p), NO_FLOOR) for p, ok in zip(penalty, success)])
+    expected = np.concatenate(
+        [discounted_returns(p, 0.9) if ok else np.full(len(p), NO_FLOOR) for p, ok in zip(penalty, success)]
+    )
     assert np.allclose(data.transitions["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
     with pytest.raises(UserInputError, match="unknown reward 'window'"):
         load_transitions([annotated], reward="window")
@@ -192,9 +231,11 @@ def test_elegant_reward_pays_an_elegant_success_and_ends_at_the_first_violating_
     assert np.flatnonzero(done).tolist() == [59, *range(60 + 25, 120), 179] and np.array_equal(done, terminated)
     assert not td["next", "truncated"].any()
     chunked = load_transitions([path], gamma=0.9, reward="elegant", chunk=8).transitions
-    assert chunked["next", "terminated"][60 + 20].item() and chunked["steps_to_next_obs"][60 + 20].item() == 6  # ends with step 25
+    assert (
+        chunked["next", "terminated"][60 + 20].item() and chunked["steps_to_next_obs"][60 + 20].item() == 6
+    )  # ends with step 25
     assert not chunked["next", "terminated"][60 + 8].item() and chunked["next", "reward"][60 + 8].item() == 0.0
-    assert chunked["next", "reward"][52].item() == pytest.approx(0.9 ** 7)  # the chunk that ends the elegant success
+    assert chunked["next", "reward"][52].item() == pytest.approx(0.9**7)  # the chunk that ends the elegant success
 
 
 def test_explored_decisions_are_marked_on_their_rows(tmp_path):
@@ -204,14 +245,19 @@ def test_explored_decisions_are_marked_on_their_rows(tmp_path):
         assert data.explored.dtype == torch.bool and len(data.explored) == len(data.transitions)
         assert torch.nonzero(data.explored).flatten().tolist() == [3, 10, 60]
     bad = write_annotated(tmp_path / "bad.hdf5", n_demos=2, lengths=(30, 31), explored_at={1: [30]})
-    with pytest.raises(UserInputError, match=r"data/demo_1: attr explored_steps must list step indices in \[0, 30\), got \[30\]"):
+    with pytest.raises(
+        UserInputError, match=r"data/demo_1: attr explored_steps must list step indices in \[0, 30\), got \[30\]"
+    ):
         load_transitions([bad])
 
 
 def test_the_data_fingerprint_follows_the_explored_decisions(tmp_path):
     """A resume must notice when the explored rows changed, though every transition stayed the same."""
+
     def fingerprint(name, explored_at):
-        return load_transitions([write_annotated(tmp_path / name, n_demos=3, lengths=(30, 31), explored_at=explored_at)]).fingerprint()
+        return load_transitions(
+            [write_annotated(tmp_path / name, n_demos=3, lengths=(30, 31), explored_at=explored_at)]
+        ).fingerprint()
 
     plain = fingerprint("plain.hdf5", None)
     assert fingerprint("empty.hdf5", {0: []}) == plain  # no explored row: digested as before the mask existed
@@ -274,7 +320,10 @@ def test_normalization_round_trips_and_guards_constant_dimensions():
     assert np.allclose(mapped[:, 0], np.linspace(-1, 1, 6)) and np.allclose(mapped[:, 1], 0)
     assert np.allclose(norm.actions([[2.0, 0.5]]), [[1.0, 1.0]])  # outside the data's bounds: clipped
     again = Normalization.from_dict(norm.to_dict())
-    assert all(np.array_equal(getattr(again, k), getattr(norm, k)) for k in ("obs_mean", "obs_std", "action_low", "action_high"))
+    assert all(
+        np.array_equal(getattr(again, k), getattr(norm, k))
+        for k in ("obs_mean", "obs_std", "action_low", "action_high")
+    )
 
 
 def test_a_dimension_that_rarely_moves_does_not_blow_up_its_outliers():
@@ -313,8 +362,12 @@ def test_chunk_transitions_sum_the_chunks_penalties_and_bootstrap_after_the_chun
             reward = sum(0.5**i * float(one["next", "reward"][t + i]) for i in range(steps))
             assert float(four["next", "reward"][t]) == pytest.approx(reward)
             assert int(four["steps_to_next_obs"][t]) == steps
-            np.testing.assert_array_equal(four["next", "observation"][t].numpy(), one["next", "observation"][t + steps - 1].numpy())
-            np.testing.assert_array_equal(four["next", "action"][t].numpy(), four["action"][min(t + steps, end)].numpy())
+            np.testing.assert_array_equal(
+                four["next", "observation"][t].numpy(), one["next", "observation"][t + steps - 1].numpy()
+            )
+            np.testing.assert_array_equal(
+                four["next", "action"][t].numpy(), four["action"][min(t + steps, end)].numpy()
+            )
             for flag in ("done", "terminated", "truncated"):
                 assert bool(four["next", flag][t]) == bool(one["next", flag][t + steps - 1])
         np.testing.assert_array_equal(four["mc_return"][rows].numpy(), one["mc_return"][rows].numpy())

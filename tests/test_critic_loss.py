@@ -1,6 +1,7 @@
 """CalQLLoss, tested the TorchRL way: tiny networks, gradient isolation per term, no input mutation,
 state_dict round trip; plus the two places where it departs from the stock CQLLoss (the logsumexp's
 axis, every sampled action scored at s) and Cal-QL's calibration on hand-made numbers."""
+
 from __future__ import annotations
 
 import math
@@ -18,22 +19,27 @@ OBS, ACT, BATCH, N = 5, 3, 6, 4
 
 def make_loss(seed: int = 0, **kwargs) -> CalQLLoss:
     torch.manual_seed(seed)
-    return CalQLLoss(TanhGaussianActor(OBS, ACT, (8,)), TwinQNetwork(OBS, ACT, (8, 8)), n_actions=N, gamma=0.9, **kwargs)
+    return CalQLLoss(
+        TanhGaussianActor(OBS, ACT, (8,)), TwinQNetwork(OBS, ACT, (8, 8)), n_actions=N, gamma=0.9, **kwargs
+    )
 
 
 def make_batch(seed: int = 1, mc_return: float | None = None) -> TensorDict:
     g = torch.Generator().manual_seed(seed)
     mc = torch.rand(BATCH, 1, generator=g) if mc_return is None else torch.full((BATCH, 1), mc_return)
-    return TensorDict({
-        "observation": torch.randn(BATCH, OBS, generator=g),
-        "action": torch.rand(BATCH, ACT, generator=g) * 2 - 1,
-        "mc_return": mc,
-        "next": {
+    return TensorDict(
+        {
             "observation": torch.randn(BATCH, OBS, generator=g),
-            "reward": torch.rand(BATCH, 1, generator=g),
-            "terminated": torch.tensor([[True], [False]] * (BATCH // 2)),
+            "action": torch.rand(BATCH, ACT, generator=g) * 2 - 1,
+            "mc_return": mc,
+            "next": {
+                "observation": torch.randn(BATCH, OBS, generator=g),
+                "reward": torch.rand(BATCH, 1, generator=g),
+                "terminated": torch.tensor([[True], [False]] * (BATCH // 2)),
+            },
         },
-    }, batch_size=[BATCH])
+        batch_size=[BATCH],
+    )
 
 
 def param_groups(loss: CalQLLoss) -> dict[str, list[torch.Tensor]]:
@@ -47,9 +53,16 @@ def param_groups(loss: CalQLLoss) -> dict[str, list[torch.Tensor]]:
     return groups
 
 
-@pytest.mark.parametrize("term, owner", [
-    ("loss_actor", "actor"), ("loss_qvalue", "critic"), ("loss_cql", "critic"), ("loss_alpha", "alpha"), ("loss_alpha_prime", "alpha_prime"),
-])
+@pytest.mark.parametrize(
+    "term, owner",
+    [
+        ("loss_actor", "actor"),
+        ("loss_qvalue", "critic"),
+        ("loss_cql", "critic"),
+        ("loss_alpha", "alpha"),
+        ("loss_alpha_prime", "alpha_prime"),
+    ],
+)
 def test_each_term_sends_gradients_only_to_its_own_parameters(term, owner):
     loss = make_loss(with_lagrange=True)
     out = loss(make_batch())
@@ -163,7 +176,9 @@ def test_dataset_backup_bootstraps_from_the_datasets_next_action_not_the_actor()
     assert ("next", "action") in loss.in_keys and ("next", "action") not in make_loss().in_keys
     terms = loss.terms(batch)
     with torch.no_grad(), loss.target_qvalue_network_params.data.to_module(loss.qvalue_network):
-        next_q = loss.qvalue_network(batch["next", "observation"], batch["next", "action"].unsqueeze(1)).amin(0).squeeze(-1)
+        next_q = (
+            loss.qvalue_network(batch["next", "observation"], batch["next", "action"].unsqueeze(1)).amin(0).squeeze(-1)
+        )
     reward, terminated = batch["next", "reward"].squeeze(-1), batch["next", "terminated"].squeeze(-1)
     assert torch.allclose(terms.target, torch.where(terminated, reward, reward + 0.9 * next_q))
     with torch.no_grad():  # the actor does not enter the target
@@ -252,15 +267,80 @@ def test_bce_value_loss_classifies_logits_against_target_probabilities_and_floor
     loss = make_loss(value_loss="bce", backup="dataset")
     terms = loss.terms(batch)
     with torch.no_grad():
-        logits = loss._q(loss.target_qvalue_network_params.data, batch["next", "observation"], batch["next", "action"].unsqueeze(1))
+        logits = loss._q(
+            loss.target_qvalue_network_params.data, batch["next", "observation"], batch["next", "action"].unsqueeze(1)
+        )
     alive = ~batch["next", "terminated"].squeeze(-1)
     # the TD target backs up a probability, sigmoid of the smaller target logit, not the logit itself
     expected_target = batch["next", "reward"].squeeze(-1) + 0.9 * alive * torch.sigmoid(logits.amin(0).squeeze(-1))
     assert torch.allclose(terms.target, expected_target)
     value, _ = loss.qvalue_loss(batch, terms)
-    expected = torch.nn.functional.binary_cross_entropy_with_logits(
-        terms.q_data, terms.target.clamp(0, 1).expand_as(terms.q_data), reduction="none").mean(-1).sum(0)
+    expected = (
+        torch.nn.functional.binary_cross_entropy_with_logits(
+            terms.q_data, terms.target.clamp(0, 1).expand_as(terms.q_data), reduction="none"
+        )
+        .mean(-1)
+        .sum(0)
+    )
     assert value.item() == pytest.approx(expected.item(), rel=1e-6)
     assert loss._floor(torch.tensor([0.5, 0.0, 1.0])).tolist() == pytest.approx([0.0, -10.0, 10.0])
     with pytest.raises(ValueError, match="value_loss"):
         make_loss(value_loss="huber")
+
+
+def test_the_td_target_reads_the_target_critics_not_the_online_ones():
+    """Right after construction the target copy equals the online critic, so only moving one of them
+    tells which the TD target reads: moving the online critics leaves it, moving the target moves it."""
+    loss, batch = make_loss(), make_batch()
+
+    def target() -> torch.Tensor:
+        torch.manual_seed(3)  # the same draws of a' ~ pi(.|s') each time
+        return loss.terms(batch).target
+
+    before = target()
+    with torch.no_grad():
+        for p in loss.qvalue_network_params.values(True, True):
+            p.add_(0.5)
+    torch.testing.assert_close(target(), before, rtol=0, atol=0)
+    with torch.no_grad():
+        for p in loss.target_qvalue_network_params.values(True, True):
+            p.add_(0.5)
+    assert not torch.allclose(target(), before)
+
+
+class _RowCodedDraws:
+    """A stand-in for the actor's distribution over the 2B stacked states [s; s']: draw i at stacked row r
+    is the action (r, i, 0, ...), so every sampled action says which state and which draw it came from."""
+
+    def __init__(self, rows: int):
+        self.rows = rows
+
+    def rsample_and_log_prob(self, shape: tuple[int]) -> tuple[torch.Tensor, torch.Tensor]:
+        (draws,) = shape
+        drawn = torch.zeros(draws, self.rows, ACT)
+        drawn[..., 0] = torch.arange(self.rows, dtype=torch.float32)[None, :]
+        drawn[..., 1] = torch.arange(draws, dtype=torch.float32)[:, None]
+        return drawn, torch.zeros(draws, self.rows)
+
+
+def test_cql_scores_each_states_own_policy_draws_at_that_state():
+    """Row b of the CQL term scores, at s_b, the N draws of pi(.|s_b) and then the N draws of pi(.|s'_b)
+    (Cal-QL's reference). A reshape that skips the permute would score other states' draws at s_b."""
+    loss, batch = make_loss(), make_batch()
+    object.__setattr__(loss.actor_network, "distribution", lambda obs: _RowCodedDraws(len(obs)))
+    scored = []
+    real_q = loss._q
+
+    def recording_q(params, obs, actions):
+        scored.append(actions.detach().clone())
+        return real_q(params, obs, actions)
+
+    loss._q = recording_q
+    loss.terms(batch)
+    actions = scored[0]  # (B, 1 + 3N, A): the data action, N uniform, 2N policy draws
+    assert actions.shape == (BATCH, 1 + 3 * N, ACT)
+    policy = actions[:, 1 + N :]
+    for b in range(BATCH):
+        assert policy[b, :N, 0].tolist() == [float(b)] * N  # drawn at s_b
+        assert policy[b, N:, 0].tolist() == [float(BATCH + b)] * N  # drawn at s'_b
+        assert policy[b, :N, 1].tolist() == policy[b, N:, 1].tolist() == [float(i) for i in range(1, N + 1)]

@@ -1,15 +1,21 @@
 """Clean-vs-knob continuation pairs: scoring hand-made pairs with a stand-in critic, the input refusals,
 and branching real expert rollouts in the simulator."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from base_suites.runtime.errors import UserInputError
 from conftest import load_benchmark
 
+from base_suites.runtime.errors import UserInputError
+
 _pairs = load_benchmark("continuation_pairs")
-Continuation, Pair, continuation_pairs, pair_preference = _pairs.Continuation, _pairs.Pair, _pairs.continuation_pairs, _pairs.pair_preference
+Continuation, Pair, continuation_pairs, pair_preference = (
+    _pairs.Continuation,
+    _pairs.Pair,
+    _pairs.continuation_pairs,
+    _pairs.pair_preference,
+)
 
 STATE_SIZE = 3
 
@@ -31,14 +37,23 @@ def pair(knob: str, clean: float, knobbed: float) -> Pair:
 
 
 def test_preference_counts_strict_clean_wins_per_knob():
-    pairs = [pair("drop", 1.0, 0.0), pair("drop", 1.0, 0.5), pair("drop", 0.0, 1.0),
-             pair("tilt", 2.0, 1.0), pair("tilt", 1.0, 1.0)]  # the last one is a tie: no win
+    pairs = [
+        pair("drop", 1.0, 0.0),
+        pair("drop", 1.0, 0.5),
+        pair("drop", 0.0, 1.0),
+        pair("tilt", 2.0, 1.0),
+        pair("tilt", 1.0, 1.0),
+    ]  # the last one is a tie: no win
     report = pair_preference(SumCritic(), pairs)
     assert (report["pairs"], report["clean_wins"]) == (5, 3)
     assert report["clean_preferred"] == pytest.approx(0.6)
     assert report["mean_gap"] == pytest.approx((1.0 + 0.5 - 1.0 + 1.0 + 0.0) / 5)
-    assert report["per_knob"]["drop"] == pytest.approx({"pairs": 3, "clean_wins": 2, "clean_preferred": 2 / 3, "mean_gap": 0.5 / 3})
-    assert report["per_knob"]["tilt"] == pytest.approx({"pairs": 2, "clean_wins": 1, "clean_preferred": 0.5, "mean_gap": 0.5})
+    assert report["per_knob"]["drop"] == pytest.approx(
+        {"pairs": 3, "clean_wins": 2, "clean_preferred": 2 / 3, "mean_gap": 0.5 / 3}
+    )
+    assert report["per_knob"]["tilt"] == pytest.approx(
+        {"pairs": 2, "clean_wins": 1, "clean_preferred": 0.5, "mean_gap": 0.5}
+    )
 
 
 def test_sides_are_scored_over_the_same_number_of_steps():
@@ -50,12 +65,22 @@ def test_sides_are_scored_over_the_same_number_of_steps():
 
 
 def test_preference_without_pairs_has_no_fraction():
-    assert pair_preference(SumCritic(), []) == {"pairs": 0, "clean_wins": 0, "clean_preferred": None, "mean_gap": None, "per_knob": {}}
+    assert pair_preference(SumCritic(), []) == {
+        "pairs": 0,
+        "clean_wins": 0,
+        "clean_preferred": None,
+        "mean_gap": None,
+        "per_knob": {},
+    }
 
 
-@pytest.mark.parametrize("knobs, inits, message", [
-    (["wobble"], [0], "unknown knob 'wobble'"), (["drop"], [], "at least one knob and one init"),
-])
+@pytest.mark.parametrize(
+    "knobs, inits, message",
+    [
+        (["wobble"], [0], "unknown knob 'wobble'"),
+        (["drop"], [], "at least one knob and one init"),
+    ],
+)
 def test_bad_pair_inputs_are_refused_before_building_an_env(knobs, inits, message):
     with pytest.raises(UserInputError, match=message):
         continuation_pairs("libero_object", 0, knobs, inits, seed=0)

@@ -1,5 +1,6 @@
 """Training the critic end to end on a tiny annotated file: artifact, metrics, resume after a real kill,
 loading, run-time scoring, held-out evaluation, and the refusals users hit."""
+
 from __future__ import annotations
 
 import csv
@@ -14,10 +15,10 @@ import time
 import numpy as np
 import pytest
 import torch
+from test_critic_data import task_layout, write_annotated
 
 from base_suites.runtime.errors import UserInputError
 from critics import auroc, evaluate_critic, load, train_critic
-from test_critic_data import task_layout, write_annotated
 
 TINY = {"batch_size": 32, "hidden": (16, 16), "n_actions": 3, "progress": False}
 
@@ -77,8 +78,10 @@ def test_loaded_critic_scores_raw_states_and_actions(trained, task):
     # a state far outside the training range is clipped as in training, not extrapolated
     far = state * 1e4
     with torch.no_grad():
-        far_by_hand = critic.network(torch.from_numpy(norm.observations(encoder.encode(far, f"libero_object/{task}")))[None],
-                                     torch.from_numpy(norm.actions(actions))[None]).amin(0)[0]
+        far_by_hand = critic.network(
+            torch.from_numpy(norm.observations(encoder.encode(far, f"libero_object/{task}")))[None],
+            torch.from_numpy(norm.actions(actions))[None],
+        ).amin(0)[0]
     assert np.allclose(critic.q(far, actions), far_by_hand.numpy(), atol=1e-5)
     assert np.allclose(critic.q(far, actions), critic.q(far * 10, actions), atol=1e-6)
     with pytest.raises(UserInputError, match="Critic.q expects state"):
@@ -274,7 +277,9 @@ def test_explored_fraction_refusals(annotated, tmp_path):
 
 
 def test_an_elegant_success_critic_with_the_bce_value_loss_trains_and_records_it(annotated, tmp_path):
-    summary = train_critic([annotated], str(tmp_path / "bce"), steps=4, reward="elegant", value_loss="bce", gamma=0.99, **TINY)
+    summary = train_critic(
+        [annotated], str(tmp_path / "bce"), steps=4, reward="elegant", value_loss="bce", gamma=0.99, **TINY
+    )
     assert all(np.isfinite(v) for v in summary["final"].values())
     with open(os.path.join(summary["out"], "critic.json")) as f:
         training = json.load(f)["training"]

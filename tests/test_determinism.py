@@ -1,5 +1,6 @@
 """Same seed, same numbers, in any process: LIBERO places fixtures from NumPy's global RNG on every
 reset, which once made the expert's drawer handle (and so its actions) differ from run to run."""
+
 import json
 import subprocess
 import sys

@@ -1,4 +1,5 @@
 """The gymnasium env on the real LIBERO simulator: creation, determinism, success, TorchRL wrapping."""
+
 import numpy as np
 import pytest
 

@@ -6,6 +6,7 @@ into the objects, which breaks constraints within 20 steps. The critic stand-in 
 interface (bind, q(state, actions)); its score falls with the hand's height, so it changes along the
 trajectory and JITI with a small threshold does intervene, preferring candidates that drift slightly in x.
 """
+
 import json
 import shutil
 
@@ -35,8 +36,21 @@ class PlungePolicy:
 
 
 def run(out, mode="jiti", episodes=2, resume=False, **kw):
-    return evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), mode, episodes, 0, out, resume=resume,
-                    jiti_kwargs=JITI_SETTINGS, progress=False, max_steps=STEPS, **kw)
+    return evaluate(
+        SUITE,
+        [TASK],
+        PlungePolicy(),
+        ReachCritic(),
+        mode,
+        episodes,
+        0,
+        out,
+        resume=resume,
+        jiti_kwargs=JITI_SETTINGS,
+        progress=False,
+        max_steps=STEPS,
+        **kw,
+    )
 
 
 def records(out):
@@ -104,8 +118,9 @@ def test_a_run_on_two_workers_gives_the_serial_runs_episodes_traces_and_summary(
         fresh["decisions"].pop("time"), again["decisions"].pop("time")
         assert again == fresh
     timing = ("decision_time", "env_step_time", "decision_overhead")
-    assert {k: v for k, v in summary.items() if k not in timing + ("per_task",)} == \
-        {k: v for k, v in runs["full"].items() if k not in timing + ("per_task",)}
+    assert {k: v for k, v in summary.items() if k not in timing + ("per_task",)} == {
+        k: v for k, v in runs["full"].items() if k not in timing + ("per_task",)
+    }
 
 
 def test_a_serial_run_resumed_on_two_workers_fills_its_gaps_as_a_fresh_run_would(runs, tmp_path):
@@ -121,8 +136,19 @@ def test_a_serial_run_resumed_on_two_workers_fills_its_gaps_as_a_fresh_run_would
 
 def test_a_policy_workers_cannot_receive_is_refused_before_any_episode(tmp_path):
     with pytest.raises(UserInputError, match="cannot be sent to worker processes"):
-        evaluate(SUITE, [TASK], lambda obs: np.zeros(7), None, "base", 2, 0, tmp_path / "lambda", progress=False, max_steps=STEPS,
-                 workers=2)
+        evaluate(
+            SUITE,
+            [TASK],
+            lambda obs: np.zeros(7),
+            None,
+            "base",
+            2,
+            0,
+            tmp_path / "lambda",
+            progress=False,
+            max_steps=STEPS,
+            workers=2,
+        )
     assert not (tmp_path / "lambda").exists()
 
 
@@ -175,7 +201,9 @@ def test_bad_arguments_are_user_errors(tmp_path):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "jiti", 1, 0, tmp_path)
     with pytest.raises(UserInputError, match="init states"):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, init_states=[])
-    with pytest.raises(UserInputError, match="policy act 'sample' applies to a BC policy directory; a PlungePolicy decides its own"):
+    with pytest.raises(
+        UserInputError, match="policy act 'sample' applies to a BC policy directory; a PlungePolicy decides its own"
+    ):
         evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, policy_act="sample")
 
 
@@ -194,16 +222,24 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     left out is not passed, so the run keeps JITI's default."""
     import elegant.evaluation.runner
     from elegant.cli import main
-    from elegant.evaluation.runner import JITI_SETTINGS
+    from elegant.intervention.config import JITIConfig
 
     calls = []
     monkeypatch.setattr(elegant.evaluation.runner, "evaluate", lambda *args, **kwargs: calls.append(kwargs) or {})
-    flags = {"window": ("--window", "7", 7), "threshold": ("--threshold", "1.5", 1.5), "threshold_mode": ("--threshold-mode", "std", "std"),
-             "n_candidates": ("--candidates", "8", 8), "noise_scale": ("--noise-scale", "0.2", 0.2),
-             "trust_radius": ("--trust-radius", "0.4", 0.4), "random_rate": ("--random-rate", "0.3", 0.3),
-             "min_gain": ("--min-gain", "0.05", 0.05), "trigger": ("--trigger", "drop", "drop"), "max_overrides": ("--max-overrides", "3", 3),
-             "warmup": ("--warmup", "steer", "steer")}
-    assert set(flags) == set(JITI_SETTINGS)
+    flags = {
+        "window": ("--window", "7", 7),
+        "threshold": ("--threshold", "1.5", 1.5),
+        "threshold_mode": ("--threshold-mode", "std", "std"),
+        "n_candidates": ("--candidates", "8", 8),
+        "noise_scale": ("--noise-scale", "0.2", 0.2),
+        "trust_radius": ("--trust-radius", "0.4", 0.4),
+        "random_rate": ("--random-rate", "0.3", 0.3),
+        "min_gain": ("--min-gain", "0.05", 0.05),
+        "trigger": ("--trigger", "drop", "drop"),
+        "max_overrides": ("--max-overrides", "3", 3),
+        "warmup": ("--warmup", "steer", "steer"),
+    }
+    assert set(flags) == set(JITIConfig.settings()) - {"mode"}  # mode has its own --mode
     common = ["eval", "--suite", SUITE, "--policy", "p", "--out", str(tmp_path / "run")]
     assert main(common + [a for flag, text, _ in flags.values() for a in (flag, text)]) == 0
     assert calls[-1]["jiti_kwargs"] == {name: value for name, (_, _, value) in flags.items()}
@@ -222,7 +258,9 @@ def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tm
     run(tmp_path / "val_jiti", init_states=[0, 1])
     run(tmp_path / "val_always", mode="always", init_states=[0, 1])
     gate_path = tmp_path / "gate.json"
-    gate = write_gate(tmp_path / "val_base", tmp_path / "val_jiti", gate_path, always_run=tmp_path / "val_always", budget=1.0)
+    gate = write_gate(
+        tmp_path / "val_base", tmp_path / "val_jiti", gate_path, always_run=tmp_path / "val_always", budget=1.0
+    )
     base_val, jiti_val = records(tmp_path / "val_base"), records(tmp_path / "val_jiti")
     row = gate["tasks"][f"{SUITE}/{TASK}"]
     assert row["episodes"] == 2 and gate["init_states"] == [0, 1]
@@ -236,14 +274,33 @@ def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tm
         run(tmp_path / f"{mode}_23", mode=mode, init_states=[2, 3])
         gated, alone = records(tmp_path / f"gated_{mode}"), records(tmp_path / f"{mode}_23")
         assert [[r[k] for k in outcome] for r in gated] == [[r[k] for k in outcome] for r in alone]
-        assert json.loads((tmp_path / f"gated_{mode}" / "config.json").read_text())["gate"]["modes"] == {f"{SUITE}/{TASK}": mode}
+        assert json.loads((tmp_path / f"gated_{mode}" / "config.json").read_text())["gate"]["modes"] == {
+            f"{SUITE}/{TASK}": mode
+        }
     assert all(r["interventions"] == 0 for r in records(tmp_path / "gated_base"))
-    assert sum(r["interventions"] for r in records(tmp_path / "gated_always")) > sum(r["interventions"] for r in records(tmp_path / "gated_jiti")) > 0
+    assert (
+        sum(r["interventions"] for r in records(tmp_path / "gated_always"))
+        > sum(r["interventions"] for r in records(tmp_path / "gated_jiti"))
+        > 0
+    )
     with pytest.raises(UserInputError, match="overlaps the evaluation's starts \\(\\[1\\]\\)"):
         run(tmp_path / "overlap", init_states=[1, 2], gate=str(gate_path))
     # the same gate with other JITI settings than it validated: refused before any episode runs
     other = {**JITI_SETTINGS, "n_candidates": 5}
     with pytest.raises(UserInputError, match="gate.json: field 'agent.jiti.n_candidates' .* but this evaluation's is"):
-        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), "jiti", 2, 0, tmp_path / "other_settings", jiti_kwargs=other,
-                 progress=False, max_steps=STEPS, init_states=[2, 3], gate=str(gate_path))
+        evaluate(
+            SUITE,
+            [TASK],
+            PlungePolicy(),
+            ReachCritic(),
+            "jiti",
+            2,
+            0,
+            tmp_path / "other_settings",
+            jiti_kwargs=other,
+            progress=False,
+            max_steps=STEPS,
+            init_states=[2, 3],
+            gate=str(gate_path),
+        )
     assert not (tmp_path / "other_settings" / "episodes.jsonl").exists()

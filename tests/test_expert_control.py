@@ -1,4 +1,5 @@
 """The expert's servo targets (pure rotation maths, no simulator)."""
+
 import numpy as np
 
 from base_suites.experts.articulated import HANDLE_ROLL, _hand_facing

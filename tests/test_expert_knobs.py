@@ -1,4 +1,5 @@
 """Quality knobs: validation and the rates at which mixed collections apply them (no simulator)."""
+
 import numpy as np
 import pytest
 
@@ -13,9 +14,14 @@ def test_presets_and_mappings_resolve():
     assert parse_quality("drop=0.3,tilt=1") == {"drop": 0.3, "tilt": 1.0}
 
 
-@pytest.mark.parametrize("bad, message", [
-    ("sloppy", "unknown quality"), ({"wobble": 0.2}, "unknown quality knob"), ({"drop": 1.5}, "outside"),
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ("sloppy", "unknown quality"),
+        ({"wobble": 0.2}, "unknown quality knob"),
+        ({"drop": 1.5}, "outside"),
+    ],
+)
 def test_bad_quality_is_refused(bad, message):
     with pytest.raises(UserInputError, match=message):
         knob_rates(bad)
@@ -51,4 +57,6 @@ def test_the_short_way_round_is_taken_only_when_asked():
     assert np.allclose(plain, grasp_rotation(yaw))
     assert np.allclose(short, grasp_rotation(yaw + np.pi))
     assert abs(rotation_error(short, current)[2]) < abs(rotation_error(plain, current)[2])
-    assert np.allclose(nearest_grasp_rotation(np.deg2rad(30), current, wrist=0.0, shortest=True), grasp_rotation(np.deg2rad(30)))
+    assert np.allclose(
+        nearest_grasp_rotation(np.deg2rad(30), current, wrist=0.0, shortest=True), grasp_rotation(np.deg2rad(30))
+    )

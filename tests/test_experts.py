@@ -1,15 +1,16 @@
 """Scripted experts and demo collection on the real simulator (one task per primitive family)."""
+
 import h5py
 import numpy as np
 import pytest
+from conftest import interrupted_at_second_episode
 from scipy.spatial import ConvexHull, Delaunay
 
 import annotations.collect as collect
 from annotations import DemoFile
 from base_suites import UserInputError, make_env
-from base_suites.experts import ScriptedExpert, articulated, plan_skills
+from base_suites.experts import ScriptedExpert, articulated, plan_skills, skills
 from base_suites.experts.control import finger_axis
-from base_suites.experts import skills
 from base_suites.experts.geometry import (
     REACH_LIMIT,
     YAWS,
@@ -23,7 +24,6 @@ from base_suites.experts.geometry import (
     way_out,
 )
 from base_suites.experts.skills import SkillContext
-from conftest import interrupted_at_second_episode
 from itc import ITCWrapper
 
 pytestmark = pytest.mark.sim
@@ -44,15 +44,18 @@ def _solve(suite, task, init=0, quality="clean", episode=0, reset_seed=None):
     return info["success"], expert, info.get("itc_verdict", {})
 
 
-@pytest.mark.parametrize("suite, task, family", [
-    ("libero_goal", 0, "open drawer"),
-    ("libero_goal", 7, "turn knob"),
-    ("libero_spatial", 0, "pick and place (rim grasp of a bowl)"),
-    ("libero_spatial", 4, "pick from an open drawer, carry over the cabinet"),
-    ("libero_goal", 9, "set down on a tilted shelf (the wine rack)"),
-    ("libero_goal", 3, "open a drawer, pick from under it and carry out sideways, place into it"),
-    ("libero_10", 3, "pull a partly open drawer out, fit a bowl under the drawer above, push it shut"),
-])
+@pytest.mark.parametrize(
+    "suite, task, family",
+    [
+        ("libero_goal", 0, "open drawer"),
+        ("libero_goal", 7, "turn knob"),
+        ("libero_spatial", 0, "pick and place (rim grasp of a bowl)"),
+        ("libero_spatial", 4, "pick from an open drawer, carry over the cabinet"),
+        ("libero_goal", 9, "set down on a tilted shelf (the wine rack)"),
+        ("libero_goal", 3, "open a drawer, pick from under it and carry out sideways, place into it"),
+        ("libero_10", 3, "pull a partly open drawer out, fit a bowl under the drawer above, push it shut"),
+    ],
+)
 def test_expert_solves_one_task_per_primitive_family(suite, task, family):
     success, _, verdict = _solve(suite, task)
     assert success, family
@@ -114,7 +117,11 @@ def test_an_object_the_opened_drawer_would_hang_over_is_moved_clear_only_if_no_g
     env.reset(options={"init_state": 0})
     assert [pred for pred, _ in plan_skills(env.task.goal, view)] == [("open", drawer), ("in", bowl, drawer)]
     env.reset(options={"init_state": 20})
-    assert [pred for pred, _ in plan_skills(env.task.goal, view)] == [("clear", bowl, drawer), ("open", drawer), ("in", bowl, drawer)]
+    assert [pred for pred, _ in plan_skills(env.task.goal, view)] == [
+        ("clear", bowl, drawer),
+        ("open", drawer),
+        ("in", bowl, drawer),
+    ]
     lo, hi = articulated.opened_footprint(view, drawer)
     spot = articulated.clear_spot(view, drawer, bowl)
     moved = view.geom_points(bowl)[:, :2] - view.position(bowl)[:2] + spot
@@ -262,7 +269,9 @@ def test_a_partly_open_drawer_is_pulled_out_to_its_end_stop_by_hooking_its_front
     plan = [pred for pred, _ in plan_skills(env.task.goal, env.sim)]
     assert plan[0] == ("pull_out", drawer) and plan[-1] == ("close", drawer)
     assert articulated.pulled_short(env.sim, drawer) > articulated.FULLY_OUT
-    done, touched = _run_skill(env, articulated.pull_out(SkillContext(env.sim, np.random.default_rng(0)), drawer), max_steps=120)
+    done, touched = _run_skill(
+        env, articulated.pull_out(SkillContext(env.sim, np.random.default_rng(0)), drawer), max_steps=120
+    )
     assert done and articulated.pulled_short(env.sim, drawer) < articulated.FULLY_OUT / 2
     assert touched <= {"white_cabinet_1"}
     env.close()
@@ -354,7 +363,7 @@ def test_misplace_sets_the_object_down_beside_its_container_and_is_recorded_at_t
     env = ITCWrapper(make_env("libero_object", 3, seed=0))
     obs, _ = env.reset(options={"init_state": 0})
     sim = env.unwrapped.sim
-    (_, obj, region), = env.unwrapped.task.goal
+    ((_, obj, region),) = env.unwrapped.task.goal
     basket = sim.region(region).parent
     expert = ScriptedExpert(env.unwrapped, quality={"misplace": 1.0}, seed=0)
     expert.reset(env.unwrapped.metadata, episode=0)
@@ -370,8 +379,12 @@ def test_misplace_sets_the_object_down_beside_its_container_and_is_recorded_at_t
     env.close()
     assert supports_at_event and basket not in supports_at_event  # set down on the floor, about to be let go
     # beside the basket: the object's footprint clear of the basket's along some axis
-    assert held_xy[:, 0].min() > basket_xy[:, 0].max() or held_xy[:, 0].max() < basket_xy[:, 0].min() \
-        or held_xy[:, 1].min() > basket_xy[:, 1].max() or held_xy[:, 1].max() < basket_xy[:, 1].min()
+    assert (
+        held_xy[:, 0].min() > basket_xy[:, 0].max()
+        or held_xy[:, 0].max() < basket_xy[:, 0].min()
+        or held_xy[:, 1].min() > basket_xy[:, 1].max()
+        or held_xy[:, 1].max() < basket_xy[:, 1].min()
+    )
     assert not info["success"] and "pose_accuracy" in info["itc_verdict"]["violated"]
 
 
@@ -395,9 +408,19 @@ def test_demos_file_layout_and_interrupted_resume_matches_uninterrupted(tmp_path
         assert {"knobs", "expert_version", "init_state_index"} <= set(demo.attrs)
     interrupted_at_second_episode(monkeypatch, lambda: _collect(tmp_path, "resumed.hdf5"))
     assert (tmp_path / "resumed.hdf5.partial").exists() and not (tmp_path / "resumed.hdf5").exists()
-    with pytest.raises(UserInputError, match="cannot resume with different episodes"):  # demo_<i>'s task depends on the count
-        collect.collect_demos("libero_object", [0], 3, str(tmp_path / "resumed.hdf5"), quality={"tilt": 0.5}, seed=4, progress=False,
-                              resume=True)
+    with pytest.raises(
+        UserInputError, match="cannot resume with different episodes"
+    ):  # demo_<i>'s task depends on the count
+        collect.collect_demos(
+            "libero_object",
+            [0],
+            3,
+            str(tmp_path / "resumed.hdf5"),
+            quality={"tilt": 0.5},
+            seed=4,
+            progress=False,
+            resume=True,
+        )
     resumed, _ = _collect(tmp_path, "resumed.hdf5", resume=True)
     with DemoFile(full) as a, DemoFile(resumed) as b:
         assert len(a) == len(b) == 2

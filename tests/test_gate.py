@@ -1,4 +1,5 @@
 """The per-task JITI gate on hand-written validation runs: its counts, its rule and its refusals."""
+
 import json
 
 import pytest
@@ -6,28 +7,47 @@ import pytest
 from base_suites import UserInputError
 from elegant.intervention.gate import read_gate, task_gate, write_gate
 
-
 AGENT = {"policy": "/runs/policy", "critic": "/runs/critic", "jiti": {"window": 4, "warmup": "steer"}}
 
 
 def write_run(path, mode, elegant_by_task, init_states=(0, 1, 2), seed=0, interventions=0, **agent):
     """A finished run: config.json (with AGENT's policy, critic and JITI settings, or `agent`'s) and one
-    episodes.jsonl line per (task, episode) with its elegance (and `interventions` per episode, or {task: interventions})."""
+    episodes.jsonl line per (task, episode) with its elegance (and `interventions` per episode, or {task:
+    interventions})."""
     path.mkdir()
-    config = {"suite": "libero_goal", "mode": mode, "seed": seed, "init_states": list(init_states), "perturbation": None, "max_steps": None,
-              **AGENT, **agent}
+    config = {
+        "suite": "libero_goal",
+        "mode": mode,
+        "seed": seed,
+        "init_states": list(init_states),
+        "perturbation": None,
+        "max_steps": None,
+        **AGENT,
+        **agent,
+    }
     (path / "config.json").write_text(json.dumps(config))
     per_task = interventions if isinstance(interventions, dict) else dict.fromkeys(elegant_by_task, interventions)
-    lines = [json.dumps({"task": task, "episode": i, "elegant": e, "success": e, "interventions": per_task[task]})
-             for task, flags in elegant_by_task.items() for i, e in enumerate(flags)]
+    lines = [
+        json.dumps({"task": task, "episode": i, "elegant": e, "success": e, "interventions": per_task[task]})
+        for task, flags in elegant_by_task.items()
+        for i, e in enumerate(flags)
+    ]
     (path / "episodes.jsonl").write_text("".join(line + "\n" for line in lines))
     return path
 
 
 def test_a_task_runs_jiti_only_where_jiti_turned_more_episodes_elegant_than_it_spoiled(tmp_path):
-    base = write_run(tmp_path / "base", "base", {"libero_goal/0": [1, 1, 0, 0], "libero_goal/4": [0, 0, 0, 1], "libero_goal/1": [1, 0]})
-    jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [0, 1, 0, 0], "libero_goal/4": [1, 1, 0, 1], "libero_goal/1": [0, 1, 1]},
-                     interventions=3)
+    base = write_run(
+        tmp_path / "base",
+        "base",
+        {"libero_goal/0": [1, 1, 0, 0], "libero_goal/4": [0, 0, 0, 1], "libero_goal/1": [1, 0]},
+    )
+    jiti = write_run(
+        tmp_path / "jiti",
+        "jiti",
+        {"libero_goal/0": [0, 1, 0, 0], "libero_goal/4": [1, 1, 0, 1], "libero_goal/1": [0, 1, 1]},
+        interventions=3,
+    )
     gate = write_gate(base, jiti, tmp_path / "gate.json")
     assert json.loads((tmp_path / "gate.json").read_text()) == gate
     assert "budget" not in gate and "always_run" not in gate
@@ -38,22 +58,33 @@ def test_a_task_runs_jiti_only_where_jiti_turned_more_episodes_elegant_than_it_s
         "libero_goal/4": {"episodes": 4, "jiti": {"gained": 2, "lost": 0, "interventions": 3.0}, "mode": "jiti"},
     }
     assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/4", "libero_goal/0"], [25, 26], AGENT) == {
-        "libero_goal/4": "jiti", "libero_goal/0": "base"}
+        "libero_goal/4": "jiti",
+        "libero_goal/0": "base",
+    }
 
 
 def test_always_is_chosen_where_it_does_best_until_the_suite_spends_its_intervention_budget(tmp_path):
     tasks = [f"libero_goal/{i}" for i in range(4)]
     base = write_run(tmp_path / "base", "base", dict.fromkeys(tasks, [0, 0, 0, 0]))
     # jiti: +1 on tasks 0-2, nothing on 3; always: +3 on 0, +2 on 1, +1 on 2 (a tie with jiti), +2 on 3
-    jiti = write_run(tmp_path / "jiti", "jiti", {tasks[0]: [1, 0, 0, 0], tasks[1]: [1, 0, 0, 0], tasks[2]: [1, 0, 0, 0], tasks[3]: [0, 0, 0, 0]},
-                     interventions=2)
-    always = write_run(tmp_path / "always", "always", {tasks[0]: [1, 1, 1, 0], tasks[1]: [1, 1, 0, 0], tasks[2]: [1, 0, 0, 0],
-                                                      tasks[3]: [1, 1, 0, 0]}, interventions=20)
+    jiti = write_run(
+        tmp_path / "jiti",
+        "jiti",
+        {tasks[0]: [1, 0, 0, 0], tasks[1]: [1, 0, 0, 0], tasks[2]: [1, 0, 0, 0], tasks[3]: [0, 0, 0, 0]},
+        interventions=2,
+    )
+    always = write_run(
+        tmp_path / "always",
+        "always",
+        {tasks[0]: [1, 1, 1, 0], tasks[1]: [1, 1, 0, 0], tasks[2]: [1, 0, 0, 0], tasks[3]: [1, 1, 0, 0]},
+        interventions=20,
+    )
     modes = lambda gate: {t: row["mode"] for t, row in gate["tasks"].items()}  # noqa: E731
     # without a binding budget always wins wherever it made more elegant; the tie on task 2 keeps jiti
     roomy = task_gate(base, jiti, always, budget=1.0)
     assert modes(roomy) == {tasks[0]: "always", tasks[1]: "always", tasks[2]: "jiti", tasks[3]: "always"}
-    # 40% of always's 20 per episode is 8: (20 + 2 + 2 + 0) / 4 = 6 fits one always task, the one that gains most over its fallback
+    # 40% of always's 20 per episode is 8: (20 + 2 + 2 + 0) / 4 = 6 fits one always task, the one that gains most over
+    # its fallback
     # per saved intervention (task 0: 2 over jiti per 18 saved, task 1: 1 per 18, task 3: 2 over base per 20)
     tight = task_gate(base, jiti, always)
     assert tight["interventions_limit"] == pytest.approx(8.0) and tight["budget"] == 0.4
@@ -102,15 +133,19 @@ def test_a_gate_holds_only_for_the_policy_critic_and_jiti_settings_it_validated(
     jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [1, 0]})
     with pytest.raises(UserInputError, match="field 'policy' is '/runs/other' but the base run .* has '/runs/policy'"):
         task_gate(base, write_run(tmp_path / "other_policy", "jiti", {"libero_goal/0": [1, 0]}, policy="/runs/other"))
-    steered_differently = write_run(tmp_path / "always", "always", {"libero_goal/0": [1, 1]}, jiti={"window": 4, "warmup": "base"})
+    steered_differently = write_run(
+        tmp_path / "always", "always", {"libero_goal/0": [1, 1]}, jiti={"window": 4, "warmup": "base"}
+    )
     with pytest.raises(UserInputError, match="always: field 'jiti.warmup' is 'base' but the JITI run .*'s is 'steer'"):
         task_gate(base, jiti, steered_differently)
     gate = write_gate(base, jiti, tmp_path / "gate.json")
     assert gate["agent"] == {**AGENT, "policy_act": "mode"}  # runs from before the field acted by the mode
     assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [30], AGENT) == {"libero_goal/0": "jiti"}
-    for field, value, shown in (("critic", "/runs/critic_2", "'agent.critic' is '/runs/critic'"),
-                                ("policy_act", "sample", "'agent.policy_act' is 'mode'"),
-                                ("jiti", {"window": 8, "warmup": "steer"}, "'agent.jiti.window' is 4")):
+    for field, value, shown in (
+        ("critic", "/runs/critic_2", "'agent.critic' is '/runs/critic'"),
+        ("policy_act", "sample", "'agent.policy_act' is 'mode'"),
+        ("jiti", {"window": 8, "warmup": "steer"}, "'agent.jiti.window' is 4"),
+    ):
         with pytest.raises(UserInputError, match=f"gate.json: field {shown} but this evaluation's is"):
             read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [30], {**AGENT, field: value})
 
@@ -120,13 +155,24 @@ def test_the_gate_command_writes_the_budgeted_gate_and_refuses_a_bad_budget_in_o
 
     base = write_run(tmp_path / "base", "base", {"libero_goal/0": [0, 0], "libero_goal/1": [0, 0]})
     jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [1, 0], "libero_goal/1": [0, 0]}, interventions=2)
-    always = write_run(tmp_path / "always", "always", {"libero_goal/0": [1, 1], "libero_goal/1": [1, 0]}, interventions=10)
+    always = write_run(
+        tmp_path / "always", "always", {"libero_goal/0": [1, 1], "libero_goal/1": [1, 0]}, interventions=10
+    )
     out = tmp_path / "gate.json"
     assert main(["gate", str(base), str(jiti), "--always", str(always), "--budget", "0.6", "--out", str(out)]) == 0
     gate = json.loads(out.read_text())
-    assert gate["budget"] == 0.6 and {t: r["mode"] for t, r in gate["tasks"].items()} == {"libero_goal/0": "always", "libero_goal/1": "base"}
+    assert gate["budget"] == 0.6 and {t: r["mode"] for t, r in gate["tasks"].items()} == {
+        "libero_goal/0": "always",
+        "libero_goal/1": "base",
+    }
     capsys.readouterr()
-    assert main(["gate", str(base), str(jiti), "--always", str(always), "--budget", "2", "--out", str(tmp_path / "no.json")]) == 2
+    assert (
+        main(
+            ["gate", str(base), str(jiti), "--always", str(always), "--budget", "2", "--out", str(tmp_path / "no.json")]
+        )
+        == 2
+    )
     assert capsys.readouterr().err.strip().splitlines() == [
-        "elegant gate: error: gate budget must be in (0, 1] (a share of always's interventions), got 2.0"]
+        "elegant gate: error: gate budget must be in (0, 1] (a share of always's interventions), got 2.0"
+    ]
     assert not (tmp_path / "no.json").exists()

@@ -1,15 +1,16 @@
 """The intervention-headroom diagnostic: its summary arithmetic (unit) and, on the real simulator, that a
 branch replays the base episode exactly up to the changed action (the whole method rests on that)."""
+
 import numpy as np
 import pytest
+from conftest import load_benchmark
 
 from base_suites import make_env
-from conftest import load_benchmark
+from elegant.policies.adapters import as_policy
+from itc import ITCMonitor
 
 headroom = load_benchmark("headroom")
 _rollout, branch_episode, summarize_headroom = headroom._rollout, headroom.branch_episode, headroom.summarize_headroom
-from elegant.policies.adapters import as_policy
-from itc import ITCMonitor
 
 
 def _point(q, distance, elegant):
@@ -17,15 +18,21 @@ def _point(q, distance, elegant):
 
 
 def test_summary_counts_reachable_critic_and_random_choices_within_the_trust_radius():
-    inelegant = {"base_elegant": False, "points": [
-        # candidate 2 is elegant and the critic's best, but too far: the critic picks 1 (not elegant)
-        _point([0.0, 1.0, 5.0, 0.5], [0.0, 0.1, 0.9, 0.2], [False, False, True, True]),
-        # nothing eligible is elegant
-        _point([0.0, 1.0, 2.0], [0.0, 0.1, 0.2], [False, False, False]),
-    ]}
-    elegant = {"base_elegant": True, "points": [
-        _point([0.0, 2.0, 1.0], [0.0, 0.1, 0.1], [True, False, True]),  # the critic spoils it
-    ]}
+    inelegant = {
+        "base_elegant": False,
+        "points": [
+            # candidate 2 is elegant and the critic's best, but too far: the critic picks 1 (not elegant)
+            _point([0.0, 1.0, 5.0, 0.5], [0.0, 0.1, 0.9, 0.2], [False, False, True, True]),
+            # nothing eligible is elegant
+            _point([0.0, 1.0, 2.0], [0.0, 0.1, 0.2], [False, False, False]),
+        ],
+    }
+    elegant = {
+        "base_elegant": True,
+        "points": [
+            _point([0.0, 2.0, 1.0], [0.0, 0.1, 0.1], [True, False, True]),  # the critic spoils it
+        ],
+    }
     s = summarize_headroom([inelegant, elegant], trust_radius=0.3)
     assert s["decision_points"] == 3 and s["base_esr"] == 0.5
     assert s["choice_matters"] == pytest.approx(2 / 3)
@@ -57,10 +64,22 @@ def test_a_branch_replays_the_base_episode_exactly_up_to_the_changed_action():
     env = make_env("libero_object", 0, seed=0, max_steps=16)
     monitor, policy = ITCMonitor(env), as_policy(Plunge(), seed=0)
     states = []
-    actions, _ = _rollout(env, monitor, policy, 1, 3, 7, (), False, lambda t, obs, a: states.append(obs["state"].copy()))
+    actions, _ = _rollout(
+        env, monitor, policy, 1, 3, 7, (), False, lambda t, obs, a: states.append(obs["state"].copy())
+    )
     replayed = []
     changed = np.array([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0])
-    _rollout(env, monitor, policy, 1, 3, 7, [*actions[:8], changed], False, lambda t, obs, a: replayed.append(obs["state"].copy()))
+    _rollout(
+        env,
+        monitor,
+        policy,
+        1,
+        3,
+        7,
+        [*actions[:8], changed],
+        False,
+        lambda t, obs, a: replayed.append(obs["state"].copy()),
+    )
     np.testing.assert_array_equal(np.array(replayed[:9]), np.array(states[:9]))  # identical until the change acts
     assert not np.array_equal(replayed[9], states[9])
     result = branch_episode(env, monitor, policy, HeightCritic(), 3, 7, every=5, first=2, n_candidates=3)
@@ -73,16 +92,27 @@ def test_a_branch_replays_the_base_episode_exactly_up_to_the_changed_action():
 
 def test_headroom_plot_is_written_and_an_empty_result_is_refused(tmp_path):
     from base_suites import UserInputError
+
     plot_headroom = headroom.plot_headroom
 
-    result = {"episodes": [{"init_index": 3, "base_elegant": False, "points": [
-        _point([0.0, 1.0, 5.0], [0.0, 0.1, 0.9], [False, False, True]),
-        _point([2.0, 1.0, 0.0], [0.0, 0.2, 0.1], [False, True, False]),
-    ]}]}
+    result = {
+        "episodes": [
+            {
+                "init_index": 3,
+                "base_elegant": False,
+                "points": [
+                    _point([0.0, 1.0, 5.0], [0.0, 0.1, 0.9], [False, False, True]),
+                    _point([2.0, 1.0, 0.0], [0.0, 0.2, 0.1], [False, True, False]),
+                ],
+            }
+        ]
+    }
     path = plot_headroom(result, 0.3, tmp_path / "headroom.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(UserInputError):
-        plot_headroom({"episodes": [{"init_index": 0, "base_elegant": True, "points": []}]}, 0.3, tmp_path / "empty.png")
+        plot_headroom(
+            {"episodes": [{"init_index": 0, "base_elegant": True, "points": []}]}, 0.3, tmp_path / "empty.png"
+        )
 
 
 class ChunkedPlunge(Plunge):
@@ -126,6 +156,7 @@ class ContraryChunkCritic(ChunkHeightCritic):
 @pytest.mark.sim
 def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
     from base_suites import UserInputError
+
     intervention_headroom = headroom.intervention_headroom
 
     env = make_env("libero_object", 0, seed=0, max_steps=12)
@@ -135,7 +166,9 @@ def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
     assert policy.observed > 0  # the policy saw the steps inside its chunks
     for point in result["points"]:
         assert point["distance"] == pytest.approx([0.0, 0.25, 0.5])  # whole chunks moved sideways
-    actions, _ = _rollout(env, monitor, policy, 2, 3, 7, [np.zeros(7)] * 2 + list(ChunkedPlunge().sample_plans(None, 3)[2]), False)
+    actions, _ = _rollout(
+        env, monitor, policy, 2, 3, 7, [np.zeros(7)] * 2 + list(ChunkedPlunge().sample_plans(None, 3)[2]), False
+    )
     env.close()
     assert [a[0] for a in actions[:6]] == [0.0, 0.0, 0.5, 0.5, 0.0, 0.0]  # the candidate chunk, then the policy again
     with pytest.raises(UserInputError, match="multiples of 2"):
@@ -148,6 +181,7 @@ def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
 def _another_critic_is_judged_on_the_stored_branches(episode):
     """rescore_headroom recomputes Q from each point's stored state and candidates; outcomes stay."""
     from base_suites import UserInputError
+
     rescore_headroom = headroom.rescore_headroom
 
     result = {"suite": "libero_object", "task": 0, "chunk": 2, "episodes": [episode]}
@@ -158,6 +192,11 @@ def _another_critic_is_judged_on_the_stored_branches(episode):
     assert rescored["summary"]["decision_points"] == 2
     with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 2"):
         rescore_headroom(result, HeightCritic(), trust_radius=None)
-    stripped = {**result, "episodes": [{**episode, "points": [{k: v for k, v in p.items() if k != "candidates"} for p in episode["points"]]}]}
+    stripped = {
+        **result,
+        "episodes": [
+            {**episode, "points": [{k: v for k, v in p.items() if k != "candidates"} for p in episode["points"]]}
+        ],
+    }
     with pytest.raises(UserInputError, match="stores no states and candidates"):
         rescore_headroom(stripped, ContraryChunkCritic(), trust_radius=None)

@@ -6,6 +6,7 @@ bowl, bowl onto the plate, wine bottle onto the cabinet). The end effector is dr
 controller on `env.sim.eef_position()`; sub-goal order and idle fixtures are exercised by jumping to
 modified MuJoCo states.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -113,7 +114,8 @@ def test_clean_pick_and_place_keeps_every_criterion(env):
 def test_placing_beside_the_target_violates_pose_accuracy(env):
     run = start(env, CHEESE_INTO_BOWL)
     run.grasp("cream_cheese_1")
-    run.place(env.sim.position("akita_black_bowl_1") + [0.10, 0, 0], release_height=0.025)
+    # beside the bowl on the side away from the plate, which a held cheese would press
+    run.place(env.sim.position("akita_black_bowl_1") + [0, 0.10, 0], release_height=0.025)
     run.wait(OPEN, 5)
     assert not run.success
     assert run.violated() == {"pose_accuracy"}
@@ -133,6 +135,18 @@ def test_dropping_from_height_violates_collision(env):
     assert all(res.kept["collision"] for res in run.results[:drop_step]), "no collision while grasping and lifting"
 
 
+def test_a_success_reached_by_dropping_from_height_is_not_an_elegant_success(env):
+    """The cheese released 12 cm above the bowl still lands in it: LIBERO counts a success, the drop
+    violates collision, and an elegant success needs both."""
+    run = start(env, CHEESE_INTO_BOWL)
+    run.grasp("cream_cheese_1", lift=0.15)
+    run.place(env.sim.position("akita_black_bowl_1"), release_height=0.12)
+    verdict = run.monitor.verdict(run.success)
+    assert run.success and verdict.success, "the dropped cheese should land in the bowl"
+    assert "collision" in verdict.violated and not verdict.elegant
+    assert verdict.to_dict()["elegant"] is False
+
+
 def test_pushing_a_distractor_violates_sequence_and_collision(env):
     run = start(env, BOWL_ONTO_PLATE)  # the cream cheese is a distractor of this task
     cheese = env.sim.position("cream_cheese_1")
@@ -147,6 +161,7 @@ def test_pushing_a_distractor_violates_sequence_and_collision(env):
 def test_a_sliding_push_violates_collision_whatever_the_contact_force(env):
     """A finger sliding a light box along the table loads the contact only now and then; the moving
     object in contact with the robot is what gives the push away (`push_speed`)."""
+
     def push(params: ITCParams) -> Scripted:
         env.reset(options={"init_state": 0})
         monitor = ITCMonitor(env, spec=derive_spec(get_task(SCENE, BOWL_ONTO_PLATE)), params=params)
@@ -196,7 +211,9 @@ def _with_joint(env, joint: str, value: float) -> np.ndarray:
 
 def test_sub_goal_order_and_undoing(env):
     top, middle = ("open", "wooden_cabinet_1_top_region"), ("open", "wooden_cabinet_1_middle_region")
-    spec = dataclasses.replace(derive_spec(get_task(SCENE, OPEN_MIDDLE_DRAWER)), subgoals=(middle, top), order=((0, 1),))
+    spec = dataclasses.replace(
+        derive_spec(get_task(SCENE, OPEN_MIDDLE_DRAWER)), subgoals=(middle, top), order=((0, 1),)
+    )
 
     def run_order(first: str, second: str) -> list[str]:
         env.reset(options={"init_state": 0})
@@ -263,7 +280,7 @@ def test_wrapper_reports_flags_reward_and_final_verdict(env):
     env.max_steps = 4
     try:
         wrapped.reset(options={"init_state": 0})
-        for t in range(4):
+        for _ in range(4):
             _, _, terminated, truncated, info = wrapped.step(np.r_[np.zeros(6), OPEN])
             assert info["itc"]["kept"] == {c: True for c in CRITERIA} and info["elegance_reward"] == 1.0
             assert ("itc_verdict" in info) == (terminated or truncated)
@@ -274,9 +291,48 @@ def test_wrapper_reports_flags_reward_and_final_verdict(env):
     assert verdict["segments"] == {c: [True] for c in CRITERIA}
 
 
+def test_a_violation_on_a_window_boundary_marks_the_second_25_frame_window_only(env):
+    """Steps 0-24 are the first window and 25-49 the second: a distractor knocked at step 25 leaves the
+    first window kept, and 50 steps make exactly two windows (a monitor cutting 24-frame windows makes three)."""
+    run = start(env, BOWL_ONTO_PLATE)  # the cream cheese is a distractor of this task
+    run.wait(OPEN, 25)
+    state = env.get_sim_state()
+    model = env.domain.sim.model._model
+    state[1 + model.jnt_qposadr[model.joint(env.domain.get_object("cream_cheese_1").joints[0]).id]] += 0.05
+    env.set_sim_state(state)
+    run.wait(OPEN, 25)
+    assert [r.kept["sequence"] for r in run.results].index(False) == 25
+    verdict = run.monitor.verdict(run.success)
+    assert verdict.segment_length == 25
+    assert {c: len(verdict.segments[c]) for c in CRITERIA} == {c: 2 for c in CRITERIA}
+    assert verdict.segments["sequence"].tolist() == [True, False] and "sequence" in verdict.violated
+
+
 def test_monitor_refuses_steps_before_reset(env):
     with pytest.raises(RuntimeError, match="reset"):
         ITCMonitor(env).step()
+
+
+def test_goal_objects_sharing_one_region_get_its_half_size_as_tolerance():
+    """libero_10/0 puts two objects in one basket: they cannot both sit at its centre, so each may lie
+    within the region's half size minus the edge margin (4.1 cm per axis), not the single-object 3 cm that
+    libero_object/0's one object in its basket gets."""
+    from itc.context import StepContext
+
+    tolerances = {}
+    for suite in ("libero_10", "libero_object"):
+        env = make_env(suite, 0, init_state=0, seed=0)
+        try:
+            monitor = ITCMonitor(env)
+            pose = next(c for c in monitor.constraints if c.name == "pose_accuracy")
+            pose.reset(StepContext(env.sim))
+            tolerances[suite] = [pose._centre(StepContext(env.sim), p)[2] for p in monitor.spec.placements]
+        finally:
+            env.close()
+    assert len(tolerances["libero_10"]) == 2 and len(tolerances["libero_object"]) == 1
+    for tol in tolerances["libero_10"]:
+        np.testing.assert_allclose(tol, [0.041, 0.041], atol=5e-4)
+    np.testing.assert_allclose(tolerances["libero_object"][0], [0.03, 0.03])
 
 
 def test_an_object_standing_where_the_goal_object_goes_may_be_moved_but_others_not():

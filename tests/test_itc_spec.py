@@ -1,4 +1,5 @@
 """Constraint specs derived from BDDL (no simulator), YAML overrides and their refusals, parameters, windows."""
+
 from __future__ import annotations
 
 import json
@@ -67,7 +68,9 @@ def test_every_task_of_the_main_suites_derives_a_consistent_spec():
         for task in list_tasks(suite):
             spec = derive_spec(task)
             scene = load_scene(task.bddl_file)
-            named = spec.manipulated + spec.targets + spec.supports + spec.distractors + spec.idle_fixtures + spec.upright
+            named = (
+                spec.manipulated + spec.targets + spec.supports + spec.distractors + spec.idle_fixtures + spec.upright
+            )
             assert set(named) <= set(scene.entities), task.name
             assert not set(spec.manipulated) & set(spec.distractors), task.name
             pairs = set(spec.order)
@@ -95,7 +98,9 @@ def write_override(root, suite: str, index: int, text: str) -> str:
 
 
 def test_override_replaces_fields_and_per_task_params(tmp_path):
-    root = write_override(tmp_path, "libero_10", 4, "order: []\nupright: [porcelain_mug_1]\nparams: {drop_height: 0.08}\n")
+    root = write_override(
+        tmp_path, "libero_10", 4, "order: []\nupright: [porcelain_mug_1]\nparams: {drop_height: 0.08}\n"
+    )
     base = spec_of("libero_10", 4)
     spec = spec_of("libero_10", 4, root)
     assert base.order == ((0, 1),) and spec.order == ()
@@ -122,7 +127,9 @@ def test_override_replaces_fields_and_per_task_params(tmp_path):
 )
 def test_bad_override_files_are_refused_with_file_and_field(tmp_path, text, message):
     root = write_override(tmp_path, "libero_10", 4, text)
-    with pytest.raises(UserInputError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")) as err:
+    with pytest.raises(
+        UserInputError, match=message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")
+    ) as err:
         spec_of("libero_10", 4, root)
     assert str(err.value).startswith(os.path.join(root, "libero_10", "4.yaml"))
 

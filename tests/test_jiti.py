@@ -3,6 +3,7 @@
 The critic stand-in scores Q(s, a) = base_q[t] + a[0], where the state carries the step t: the base
 action (a[0] = 0) scores exactly the hand-made value and candidates can be ranked by their first entry.
 """
+
 import numpy as np
 import pytest
 
@@ -187,8 +188,21 @@ def test_trace_has_one_column_per_field_and_one_row_per_step():
     jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), window=2)
     rollout(jiti, 4)
     trace = jiti.trace()
-    assert set(trace) >= {"step", "q", "mean", "dq", "intervened", "chosen", "chosen_q", "time", "candidate_q", "action_change"}
-    for intervened, cand, chosen_q, change in zip(trace["intervened"], trace["candidate_q"], trace["chosen_q"], trace["action_change"]):
+    assert set(trace) >= {
+        "step",
+        "q",
+        "mean",
+        "dq",
+        "intervened",
+        "chosen",
+        "chosen_q",
+        "time",
+        "candidate_q",
+        "action_change",
+    }
+    for intervened, cand, chosen_q, change in zip(
+        trace["intervened"], trace["candidate_q"], trace["chosen_q"], trace["action_change"]
+    ):
         assert (cand is not None) == intervened
         if intervened:
             assert abs(max(cand) - chosen_q) < 1e-3 and change >= 0.0
@@ -197,8 +211,14 @@ def test_trace_has_one_column_per_field_and_one_row_per_step():
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"mode": "sometimes"}, "JITI mode"), ({"threshold_mode": "rel"}, "threshold_mode"), ({"window": 0}, "window"),
-     ({"n_candidates": 1}, "n_candidates"), ({"threshold": -1.0}, "threshold"), ({"trigger": "rise"}, "JITI trigger")],
+    [
+        ({"mode": "sometimes"}, "JITI mode"),
+        ({"threshold_mode": "rel"}, "threshold_mode"),
+        ({"window": 0}, "window"),
+        ({"n_candidates": 1}, "n_candidates"),
+        ({"threshold": -1.0}, "threshold"),
+        ({"trigger": "rise"}, "JITI trigger"),
+    ],
 )
 def test_bad_settings_are_user_errors(kwargs, message):
     with pytest.raises(UserInputError, match=message):
@@ -224,7 +244,9 @@ def test_intervened_steps_log_every_candidate_score_and_the_action_change():
     rollout(jiti, 3)
     trace = jiti.trace()
     assert trace["intervened"] == [True, True, True]
-    for cand, chosen, chosen_q, change in zip(trace["candidate_q"], trace["chosen"], trace["chosen_q"], trace["action_change"]):
+    for cand, chosen, chosen_q, change in zip(
+        trace["candidate_q"], trace["chosen"], trace["chosen_q"], trace["action_change"]
+    ):
         assert len(cand) == 8 and chosen == int(np.argmax(cand)) and abs(chosen_q - max(cand)) < 1e-3
         assert (change > 0) == (chosen != 0)
 
@@ -420,9 +442,14 @@ def test_mode_random_with_random_steps_intervenes_exactly_there():
     rollout(jiti, 12)
     # decisions come every 3 steps: step 7 lies inside a chunk and is no decision, so never explored
     assert [d.step for d in jiti.log if d.intervened] == [3, 9] and all(d.chosen != 0 for d in jiti.log if d.intervened)
-    jiti.random_steps = {6}  # rollouts choose the branch step per episode
-    rollout(jiti, 12)
+    # rollouts choose the branch step per episode, through reset; the agent's own steps stay for the next
+    jiti.reset(META, seed=0, random_steps={6})
+    [jiti({"state": np.array([float(t)])}) for t in range(12)]
     assert [d.step for d in jiti.log if d.intervened] == [6]
+    rollout(jiti, 12)
+    assert [d.step for d in jiti.log if d.intervened] == [3, 9]
+    with pytest.raises(AttributeError):
+        jiti.mode = "jiti"  # the agent's settings never change during a run
 
 
 def test_a_steered_warmup_reselects_the_decisions_before_the_window_is_full_and_then_only_critical_ones():
@@ -440,7 +467,9 @@ def test_a_steered_warmup_reselects_the_decisions_before_the_window_is_full_and_
     rollout(plain, 20)
     assert [d.step for d in plain.log if d.intervened] == [12] and plain.config()["warmup"] == "base"
     # the override budget bounds the steered warm-up too, and modes other than jiti ignore the setting
-    capped = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop", warmup="steer", max_overrides=2)
+    capped = JITI(
+        SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop", warmup="steer", max_overrides=2
+    )
     rollout(capped, 20)
     assert [d.step for d in capped.log if d.intervened] == [0, 1]
     base = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, mode="base", warmup="steer")
@@ -460,3 +489,95 @@ def test_trigger_none_steers_only_the_warmup_and_refuses_to_run_as_a_silent_base
     with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):
         JITI(SamplingPolicy(), ScriptedCritic(q), trigger="none")
     JITI(SamplingPolicy(), ScriptedCritic(q), trigger="none", mode="always")  # other modes ignore the trigger
+
+
+class FreshSamplesPolicy:
+    """A policy whose `sample` draws never include its base action (as `BCPolicy.sample_plans` draws fresh
+    plans): JITI itself must put the base plan among the candidates."""
+
+    def __call__(self, obs):
+        return BASE.copy()
+
+    def sample(self, obs, n):
+        out = np.repeat(BASE[None], n, axis=0)
+        out[:, 1] = 0.5 + np.arange(n) / 100.0  # every draw differs from BASE (whose entry 1 is 0.1)
+        return out
+
+    def reset(self, metadata=None, *, seed=None):
+        pass
+
+
+class ChunkedFreshSamplesPolicy:
+    """The chunked version: `plan` is the base chunk, `sample_plans` fresh chunks that all differ from it."""
+
+    chunk = 3
+
+    def __init__(self):
+        self._queue = []
+
+    def plan(self, obs):
+        return np.repeat(BASE[None], self.chunk, axis=0)
+
+    def sample_plans(self, obs, n):
+        out = np.repeat(self.plan(obs)[None], n, axis=0)
+        out[:, :, 1] = 0.5 + np.arange(n)[:, None] / 100.0
+        return out
+
+    def observe(self, obs):
+        pass
+
+    def __call__(self, obs):
+        return BASE.copy()
+
+    def sample(self, obs, n):
+        return self.sample_plans(obs, n)[:, 0]
+
+    def reset(self, metadata=None, *, seed=None):
+        pass
+
+
+class PrefersBaseCritic:
+    """Q = minus the distance of entry 1 of every action to the base action's: the base plan scores best.
+    Remembers every batch it scored (flattened plans)."""
+
+    def __init__(self, chunk=1):
+        self.chunk, self.batches = chunk, []
+
+    def bind(self, metadata):
+        pass
+
+    def q(self, state, actions):
+        actions = np.asarray(actions).reshape(len(actions), self.chunk, 7)
+        self.batches.append(actions)
+        return -np.abs(actions[:, :, 1] - BASE[1]).sum(-1)
+
+
+@pytest.mark.parametrize("chunked", [False, True])
+def test_the_base_plan_is_always_candidate_zero_even_when_the_policy_never_samples_it(chunked):
+    policy = ChunkedFreshSamplesPolicy() if chunked else FreshSamplesPolicy()
+    chunk = 3 if chunked else 1
+    critic = PrefersBaseCritic(chunk)
+    jiti = JITI(policy, critic, mode="always", n_candidates=8)
+    actions = rollout(jiti, 4 * chunk)
+    assert len(critic.batches) == 4 and all(len(b) == 8 for b in critic.batches)
+    for batch in critic.batches:  # every scored batch holds the full candidate set, the base plan first
+        np.testing.assert_array_equal(batch[0], np.repeat(BASE[None], chunk, axis=0))
+    # the critic prefers the base plan, so it is what runs, and no decision counts as an override
+    assert all(np.array_equal(a, BASE) for a in actions)
+    assert [d.chosen for d in jiti.log] == [0] * 4 and jiti.overrides == 0
+    # mode "jiti" with a steered warm-up re-ranks its first decisions the same way
+    steered = JITI(policy, PrefersBaseCritic(chunk), window=2, trigger="none", warmup="steer", n_candidates=8)
+    actions = rollout(steered, 2 * chunk)
+    assert [d.intervened for d in steered.log] == [True, True] and [d.chosen for d in steered.log] == [0, 0]
+    assert all(np.array_equal(a, BASE) for a in actions)
+
+
+@pytest.mark.parametrize("trigger", ["deviation", "drop"])
+def test_a_deviation_equal_to_an_absolute_threshold_is_not_critical(trigger):
+    """dq > tau is critical, dq == tau is not, for either trigger (the drop trigger reads a fall)."""
+    sign = 1.0 if trigger == "deviation" else -1.0
+    for last, critical in ((5.0 + sign * 1.0, False), (5.0 + sign * 1.25, True)):
+        jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4 + [last]), window=4, threshold=1.0, trigger=trigger)
+        rollout(jiti, 5)
+        d = jiti.log[4]
+        assert d.tau == 1.0 and d.dq == pytest.approx(abs(last - 5.0)) and d.intervened is critical

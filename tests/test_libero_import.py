@@ -1,4 +1,5 @@
 """Importing LIBERO's own HDF5 demos: replayed states must give the observations a live rollout gave."""
+
 import json
 
 import h5py
@@ -19,7 +20,9 @@ def _write_libero_file(path, env, states, actions, model_xml=None):
     with h5py.File(path, "w") as f:
         data = f.create_group("data")
         data.attrs["bddl_file_name"] = "libero/bddl_files/libero_object/" + env.task.bddl_file.split("/")[-1]
-        data.attrs["problem_info"] = json.dumps({"problem_name": "libero_floor_manipulation", "language_instruction": env.task.language})
+        data.attrs["problem_info"] = json.dumps(
+            {"problem_name": "libero_floor_manipulation", "language_instruction": env.task.language}
+        )
         data.attrs["env_args"] = json.dumps({"type": 1, "env_name": "Libero_Floor_Manipulation"})
         data.attrs["num_demos"] = 1
         demo = data.create_group("demo_0")

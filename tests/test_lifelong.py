@@ -4,6 +4,7 @@ Two libero_object tasks with one scripted demo each, 2 epochs per task evaluated
 5-step episode: the numbers are all failures, but the files, the matrix shapes, the metrics, the chain
 of networks from one stage to the next, resume and the refusals are the real ones.
 """
+
 import json
 import os
 import shutil
@@ -127,7 +128,20 @@ def test_refusals(run, demos, tmp_path):
 
 
 def test_cli_refuses_in_one_line(demos, tmp_path, capsys):
-    args = ["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "x"), "--epochs", "2", "--eval-every", "0"]
+    args = [
+        "lifelong",
+        "--suite",
+        SUITE,
+        "--tasks",
+        "0,1",
+        demos,
+        "--out",
+        str(tmp_path / "x"),
+        "--epochs",
+        "2",
+        "--eval-every",
+        "0",
+    ]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "eval_every must be a positive integer" in err
@@ -137,8 +151,15 @@ def test_cli_hands_the_worker_count_to_the_evaluations(demos, tmp_path, monkeypa
     import elegant.evaluation.lifelong
 
     seen = {}
-    monkeypatch.setattr(elegant.evaluation.lifelong, "run_lifelong", lambda *a, **kw: seen.update(kw) or {"metrics": {}, "metrics_elegant": {}})
-    assert main(["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "w"), "--workers", "2"]) == 0
+    monkeypatch.setattr(
+        elegant.evaluation.lifelong,
+        "run_lifelong",
+        lambda *a, **kw: seen.update(kw) or {"metrics": {}, "metrics_elegant": {}},
+    )
+    assert (
+        main(["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "w"), "--workers", "2"])
+        == 0
+    )
     assert seen["workers"] == 2
 
 
@@ -150,4 +171,7 @@ def test_a_run_from_before_the_mixture_size_setting_resumes_with_its_five_compon
     (out / "config.json").write_text(json.dumps(config))
     with pytest.raises(UserInputError, match="field 'modes' is 5 but this run has 16"):
         run_lifelong(SUITE, TASKS, [demos], out, resume=True, **SETTINGS)
-    assert run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "modes": 5})["metrics"] == result["metrics"]
+    assert (
+        run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "modes": 5})["metrics"]
+        == result["metrics"]
+    )

@@ -1,4 +1,5 @@
 """Metrics against hand-computed numbers: episode metrics, LIBERO's FWT/NBT/AUC, LIBERO-PRO robustness."""
+
 import numpy as np
 import pytest
 
@@ -20,8 +21,17 @@ from elegant.evaluation.metrics import (
 
 
 def rec(task, success, elegant, violated, interventions, steps, dt, env):
-    return {"task": task, "success": success, "elegant": elegant, "violated": violated, "interventions": interventions,
-            "overrides": interventions // 2, "steps": steps, "decision_time": dt, "env_step_time": env}
+    return {
+        "task": task,
+        "success": success,
+        "elegant": elegant,
+        "violated": violated,
+        "interventions": interventions,
+        "overrides": interventions // 2,
+        "steps": steps,
+        "decision_time": dt,
+        "env_step_time": env,
+    }
 
 
 RECORDS = [
@@ -34,7 +44,9 @@ RECORDS = [
 def test_episode_metrics():
     assert success_rate(RECORDS) == pytest.approx(2 / 3)
     assert elegant_success_rate(RECORDS) == pytest.approx(1 / 3)
-    assert violation_rates(RECORDS) == pytest.approx({"sequence": 0.0, "pose_accuracy": 0.0, "alignment": 1 / 3, "collision": 2 / 3})
+    assert violation_rates(RECORDS) == pytest.approx(
+        {"sequence": 0.0, "pose_accuracy": 0.0, "alignment": 1 / 3, "collision": 2 / 3}
+    )
     assert interventions_per_episode(RECORDS) == pytest.approx(2.0)
     timing = decision_overhead(RECORDS)  # weighted by steps: (10*1 + 20*2 + 0) ms / 60 steps
     assert timing["decision_time"] == pytest.approx(0.05 / 60)
@@ -47,19 +59,29 @@ def test_summary_overall_and_per_task():
     assert s["episodes"] == 3 and s["overrides_per_episode"] == pytest.approx(1.0) and s["steps_per_episode"] == 20
     assert list(s["per_task"]) == ["s/0", "s/1"]
     a, b = s["per_task"]["s/0"], s["per_task"]["s/1"]
-    assert (a["success_rate"], a["esr"], a["itc_violation_rate"]["collision"], a["interventions_per_episode"]) == (1.0, 0.5, 0.5, 3.0)
+    assert (a["success_rate"], a["esr"], a["itc_violation_rate"]["collision"], a["interventions_per_episode"]) == (
+        1.0,
+        0.5,
+        0.5,
+        3.0,
+    )
     assert (b["success_rate"], b["esr"], b["itc_violation_rate"]["alignment"]) == (0.0, 0.0, 1.0)
 
 
 def test_success_with_violation_counts_only_successful_episodes():
     # the failed episode's collision does not count: it explains a lost success, not a lost elegant success
-    assert success_with_violation(RECORDS) == pytest.approx({"sequence": 0.0, "pose_accuracy": 0.0, "alignment": 0.0, "collision": 1 / 3})
+    assert success_with_violation(RECORDS) == pytest.approx(
+        {"sequence": 0.0, "pose_accuracy": 0.0, "alignment": 0.0, "collision": 1 / 3}
+    )
     assert summarize(RECORDS)["success_with_violation"]["collision"] == pytest.approx(1 / 3)
 
 
 def test_rate_interval_is_wilsons():
     z, n, p = 1.959963984540054, 25, 16 / 25
-    centre, half = (p + z * z / (2 * n)) / (1 + z * z / n), z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    centre, half = (
+        (p + z * z / (2 * n)) / (1 + z * z / n),
+        z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n),
+    )
     assert rate_interval(16, 25) == pytest.approx([centre - half, centre + half])
     low, high = rate_interval(0, 10)
     assert low == 0.0 and 0.2 < high < 0.35  # never a zero-width interval at 0 of 10
@@ -69,7 +91,14 @@ def test_rate_interval_is_wilsons():
 
 
 def start(episode, success, elegant, seed=7, task="s/0"):
-    return {"task": task, "episode": episode, "init_index": episode + 25, "seed": seed, "success": success, "elegant": elegant}
+    return {
+        "task": task,
+        "episode": episode,
+        "init_index": episode + 25,
+        "seed": seed,
+        "success": success,
+        "elegant": elegant,
+    }
 
 
 def test_paired_comparison_pairs_identical_starts_and_applies_mcnemar():
@@ -79,7 +108,7 @@ def test_paired_comparison_pairs_identical_starts_and_applies_mcnemar():
     after[9] = start(9, True, True, seed=8)  # same episode index, another reset seed: not the same start
     elegant = paired_comparison(before, after, "elegant")
     assert elegant["pairs"] == 9 and (elegant["only_after"], elegant["only_before"]) == (6, 0)
-    assert elegant["difference"] == pytest.approx(6 / 9) and elegant["p_value"] == pytest.approx(2 * 0.5 ** 6)
+    assert elegant["difference"] == pytest.approx(6 / 9) and elegant["p_value"] == pytest.approx(2 * 0.5**6)
     success = paired_comparison(before, after, "success")
     assert success["difference"] == 0.0 and success["p_value"] == 1.0  # no discordant pair
     assert paired_comparison(before, [start(0, True, True, task="s/1")], "success") == {"pairs": 0}
@@ -155,3 +184,16 @@ def test_robustness_metrics_by_hand():
         robustness_metrics({"init": 0.1})
     with pytest.raises(UserInputError, match="at least one perturbed axis"):
         robustness_metrics({"ori": 0.9})
+
+
+def test_lifelong_metrics_clamp_at_the_kept_checkpoints_not_at_their_own_best():
+    """Elegant curves are clamped where the checkpoint was kept by success: FWT and AUC then differ from
+    clamping at the elegant curve's own maximum, by hand."""
+    S_ = np.array([[0.4, 0.0], [0.2, 0.6]])
+    C_ = np.array([[0.0, 0.6, 0.2, 0.7], [0.5, 0.1, 0.9, 0.0]])
+    kept = [2, 0]  # clamped rows: [0, 0.6, 0.2, 0.2] and [0.5, 0.5, 0.5, 0.5]
+    m = lifelong_metrics(S_, C_, kept=kept)
+    assert m["fwt_per_task"] == pytest.approx([0.25, 0.5]) and m["fwt"] == pytest.approx(0.375)
+    assert m["auc_per_task"] == pytest.approx([(0.25 + 0.2) / 2, 0.5]) and m["auc"] == pytest.approx(0.3625)
+    own = lifelong_metrics(S_, C_)  # at their own maxima: [0, 0.6, 0.2, 0.7] and [0.5, 0.1, 0.9, 0.9]
+    assert own["fwt"] == pytest.approx((1.5 / 4 + 2.4 / 4) / 2) and own["fwt"] != pytest.approx(m["fwt"])

@@ -1,5 +1,6 @@
 """Episodes on worker processes (`base_suites.runtime.jobs`): the runner's contract with toy jobs, then the real
 collectors, whose files must not depend on the number of workers."""
+
 import os
 import time
 from functools import partial
@@ -107,11 +108,20 @@ def test_in_order_releases_results_by_position_from_the_first_missing_one():
 
 def test_a_runs_records_count_in_task_then_episode_order_whatever_order_they_finished_in():
     config = {"suite": "libero_goal", "tasks": [4, 1], "episodes": 2}
-    finished = [{"task": "libero_goal/1", "episode": 1}, {"task": "libero_goal/4", "episode": 1},
-                {"task": "libero_goal/1", "episode": 0}, {"task": "libero_goal/4", "episode": 2},
-                {"task": "libero_goal/4", "episode": 0}, {"task": "libero_goal/7", "episode": 0}]
-    assert [(r["task"], r["episode"]) for r in run_records(finished, config)] == \
-        [("libero_goal/4", 0), ("libero_goal/4", 1), ("libero_goal/1", 0), ("libero_goal/1", 1)]
+    finished = [
+        {"task": "libero_goal/1", "episode": 1},
+        {"task": "libero_goal/4", "episode": 1},
+        {"task": "libero_goal/1", "episode": 0},
+        {"task": "libero_goal/4", "episode": 2},
+        {"task": "libero_goal/4", "episode": 0},
+        {"task": "libero_goal/7", "episode": 0},
+    ]
+    assert [(r["task"], r["episode"]) for r in run_records(finished, config)] == [
+        ("libero_goal/4", 0),
+        ("libero_goal/4", 1),
+        ("libero_goal/1", 0),
+        ("libero_goal/1", 1),
+    ]
 
 
 def _contents(path):
@@ -134,7 +144,16 @@ def test_demos_and_their_annotation_do_not_depend_on_the_number_of_workers(tmp_p
     files = {}
     for workers in (1, 2):
         demos = str(tmp_path / f"demos_{workers}.hdf5")
-        collect_demos("libero_object", [0, 1], 2, demos, quality={"tilt": 0.5, "collide": 0.5}, seed=2, progress=False, workers=workers)
+        collect_demos(
+            "libero_object",
+            [0, 1],
+            2,
+            demos,
+            quality={"tilt": 0.5, "collide": 0.5},
+            seed=2,
+            progress=False,
+            workers=workers,
+        )
         annotated = str(tmp_path / f"annotated_{workers}.hdf5")
         annotate_file(demos, annotated, progress=False, workers=workers)
         files[workers] = (_contents(demos), _contents(annotated))

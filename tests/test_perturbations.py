@@ -1,4 +1,5 @@
 """LIBERO-PRO perturbation operators on the real simulator: each changes what it claims and only that."""
+
 import numpy as np
 import pytest
 

@@ -1,4 +1,5 @@
 """The chain behind `elegant quickstart` and the effect benchmark, at tiny sizes on the real simulator."""
+
 import json
 import os
 import shutil
@@ -32,7 +33,12 @@ def chain(tmp_path_factory):
 
 def test_chain_runs_every_step_and_reports_the_eval_numbers(chain):
     out, result = chain
-    for name in ("demos_libero_object.hdf5", "annotated_libero_object.hdf5", "critic/critic.json", "policy/config.json"):
+    for name in (
+        "demos_libero_object.hdf5",
+        "annotated_libero_object.hdf5",
+        "critic/critic.json",
+        "policy/config.json",
+    ):
         assert os.path.exists(os.path.join(out, name)), name
     assert os.path.exists(result["report"])
     for mode in ("base", "jiti"):
@@ -96,24 +102,52 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     import h5py
 
     copy_data_and_policy(chain[0], tmp_path)
-    cfg = replace(TINY, critic_rollouts=2, rollout_explore_at=(4, 8), critic_backup="dataset", trust_radius=None, critic_reward="elegant",
-                  critic_value_loss="bce", critic_hidden=(16, 16), critic_weight_decay=0.1, critic_mc_weight=10.0, critic_explored_fraction=0.5, trigger="drop",
-                  jiti_gate=True, modes=("base", "always", "jiti"))
+    cfg = replace(
+        TINY,
+        critic_rollouts=2,
+        rollout_explore_at=(4, 8),
+        critic_backup="dataset",
+        trust_radius=None,
+        critic_reward="elegant",
+        critic_value_loss="bce",
+        critic_hidden=(16, 16),
+        critic_weight_decay=0.1,
+        critic_mc_weight=10.0,
+        critic_explored_fraction=0.5,
+        trigger="drop",
+        jiti_gate=True,
+        modes=("base", "always", "jiti"),
+    )
     result = run_chain(str(tmp_path), cfg, progress=False)
     rollouts = str(tmp_path / "rollouts_libero_object.hdf5")
     training = json.load(open(tmp_path / "critic" / "critic.json"))["training"]
-    assert {k: training[k] for k in ("backup", "reward", "value_loss", "hidden", "weight_decay", "mc_weight", "explored_fraction")} == {
-        "backup": "dataset", "reward": "elegant", "value_loss": "bce", "hidden": [16, 16], "weight_decay": 0.1, "mc_weight": 10.0,
-        "explored_fraction": 0.5}
-    assert [os.path.basename(p) for p in training["paths"]] == ["annotated_libero_object.hdf5", "annotated_rollouts_libero_object.hdf5"]
+    assert {
+        k: training[k]
+        for k in ("backup", "reward", "value_loss", "hidden", "weight_decay", "mc_weight", "explored_fraction")
+    } == {
+        "backup": "dataset",
+        "reward": "elegant",
+        "value_loss": "bce",
+        "hidden": [16, 16],
+        "weight_decay": 0.1,
+        "mc_weight": 10.0,
+        "explored_fraction": 0.5,
+    }
+    assert [os.path.basename(p) for p in training["paths"]] == [
+        "annotated_libero_object.hdf5",
+        "annotated_rollouts_libero_object.hdf5",
+    ]
     with h5py.File(rollouts) as f:
         starts = sorted(int(f["data"][d].attrs["init_state_index"]) for d in f["data"])
         explored = [json.loads(f["data"][d].attrs["explored_steps"]) for d in f["data"]]
     assert len(starts) == 2 and max(starts) < 25
     assert explored == [[4], [4]]  # the two starts branch at the first point before any start branches at the second
     # rank-check replays the real policy (its history window) through the recorded steps before the branch
-    ranked = branch_ranking(str(tmp_path / "annotated_rollouts_libero_object.hdf5"), as_policy(open_policy(str(tmp_path / "policy")), seed=0),
-                            open_critic(str(tmp_path / "critic")))
+    ranked = branch_ranking(
+        str(tmp_path / "annotated_rollouts_libero_object.hdf5"),
+        as_policy(open_policy(str(tmp_path / "policy")), seed=0),
+        open_critic(str(tmp_path / "critic")),
+    )
     assert (ranked["all"]["episodes"], ranked["all"]["skipped"]) == (2, 0)
     for mode in ("base", "jiti"):
         config = json.load(open(os.path.join(result["runs"][mode]["libero_object"], "config.json")))
@@ -125,10 +159,12 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     assert jiti_config["gate"]["modes"] == {"libero_object/0": gate["tasks"]["libero_object/0"]["mode"]}
     assert gate["always_run"] == str(tmp_path / "validate_always_libero_object") and gate["budget"] == 0.4
     for mode in ("base", "jiti", "always"):
-        assert json.load(open(tmp_path / f"validate_{mode}_libero_object" / "config.json"))["init_states"] == list(range(25))
+        assert json.load(open(tmp_path / f"validate_{mode}_libero_object" / "config.json"))["init_states"] == list(
+            range(25)
+        )
     with pytest.raises(UserInputError, match="jiti_gate validates on the rollouts' starts"):
         run_chain(str(tmp_path / "other"), replace(TINY, jiti_gate=True), progress=False)
-    with pytest.raises(UserInputError, match="chain trigger 'rise'"):
+    with pytest.raises(UserInputError, match="chain unknown JITI trigger 'rise'"):
         run_chain(str(tmp_path / "other"), replace(cfg, trigger="rise"), progress=False)
     with pytest.raises(UserInputError, match="chain critic settings: unknown train-critic backup .mine."):
         run_chain(str(tmp_path / "other"), replace(cfg, critic_backup="mine"), progress=False)
@@ -148,21 +184,27 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
     seed + k, and the JITI run is judged by all of them together, within its `max_overrides` budget and
     with its `warmup` and number of `candidates`."""
     copy_data_and_policy(chain[0], tmp_path)
-    result = run_chain(str(tmp_path), replace(TINY, critic_members=2, seed=3, max_overrides=1, warmup="steer", candidates=5), progress=False)
+    result = run_chain(
+        str(tmp_path),
+        replace(TINY, critic_members=2, seed=3, max_overrides=1, warmup="steer", candidates=5),
+        progress=False,
+    )
     assert not os.path.exists(tmp_path / "critic")
     for k, resample in ((1, 3), (2, 4)):
         training = json.load(open(tmp_path / f"critic_{k}" / "critic.json"))["training"]
         assert (training["bootstrap"], training["seed"]) == (resample, resample)
     config = json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))
-    assert config["critic"] == f"{tmp_path / 'critic_1'},{tmp_path / 'critic_2'}" and config["jiti"]["max_overrides"] == 1
+    assert (
+        config["critic"] == f"{tmp_path / 'critic_1'},{tmp_path / 'critic_2'}" and config["jiti"]["max_overrides"] == 1
+    )
     assert config["jiti"]["warmup"] == "steer" and config["jiti"]["n_candidates"] == 5
     with pytest.raises(UserInputError, match="critic_members must be >= 1"):
         run_chain(str(tmp_path / "other"), replace(TINY, critic_members=0), progress=False)
-    with pytest.raises(UserInputError, match="chain warmup"):
+    with pytest.raises(UserInputError, match="chain unknown JITI warmup"):
         run_chain(str(tmp_path / "other"), replace(TINY, warmup="always"), progress=False)
     with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):  # refused before any data is made
         run_chain(str(tmp_path / "other"), replace(TINY, trigger="none"), progress=False)
-    with pytest.raises(UserInputError, match="chain candidates must be >= 2"):
+    with pytest.raises(UserInputError, match="chain JITI n_candidates must be >= 2"):
         run_chain(str(tmp_path / "other"), replace(TINY, candidates=1), progress=False)
     assert not os.path.exists(tmp_path / "other")
 
@@ -174,12 +216,17 @@ def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(mon
     from elegant import cli, pipeline
 
     calls = []
-    monkeypatch.setattr(pipeline, "run_chain", lambda out, config, progress, workers: calls.append((out, config, workers)) or {})
+    monkeypatch.setattr(
+        pipeline, "run_chain", lambda out, config, progress, workers: calls.append((out, config, workers)) or {}
+    )
     assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--task", "3", "--episodes", "4"]) == 0
     assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--workers", "1"]) == 0
     (out, config, workers), (_, _, one) = calls
     assert out == str(tmp_path / "qs") and (workers, one) == (available_cores(), 1)
     assert config.tasks == (3,) and config.episodes == 4 and config.suites == pipeline.QUICKSTART.suites
-    assert replace(config, tasks=pipeline.QUICKSTART.tasks, episodes=pipeline.QUICKSTART.episodes) == pipeline.QUICKSTART
-    config.validate()  # the recipe passes the chain's own checks (rollouts for the explored fraction, a steered warm-up)
+    assert (
+        replace(config, tasks=pipeline.QUICKSTART.tasks, episodes=pipeline.QUICKSTART.episodes) == pipeline.QUICKSTART
+    )
+    # the recipe passes the chain's own checks (rollouts for the explored fraction, a steered warm-up)
+    config.validate()
     assert config.critic_rollouts > 0 and config.warmup == "steer" and config.chunk > 1

@@ -1,4 +1,5 @@
 """BC-GMM policy: training on a tiny synthetic dataset, resume, the saved artifact and its refusals."""
+
 from __future__ import annotations
 
 import json
@@ -31,7 +32,9 @@ def expert(state: np.ndarray, key: str) -> np.ndarray:
     return action
 
 
-def write_demos(path, *, demos_per_task: int = 5, steps: int = 30, seed: int = 0, layouts=LAYOUTS, failures: int = 0) -> str:
+def write_demos(
+    path, *, demos_per_task: int = 5, steps: int = 30, seed: int = 0, layouts=LAYOUTS, failures: int = 0
+) -> str:
     """`failures`: the last this many demos of each task are marked as failed episodes."""
     rng = np.random.default_rng(seed)
     writer = DemoWriter(str(path), {"env_args": {}, "problem_info": {}})
@@ -47,8 +50,22 @@ def write_demos(path, *, demos_per_task: int = 5, steps: int = 30, seed: int = 0
                 state = state.copy()
                 state[:3] += 0.05 * actions[-1][:3] + rng.normal(0, 0.005, 3)
             obs, actions = np.array(obs), np.array(actions)
-            attrs = {"suite": suite, "task_index": int(index), "task_name": key, "success": d < demos_per_task - failures}
-            demo = Demo(f"demo_{d}", actions, np.zeros((steps, 3)), obs, np.roll(obs, -1, 0), np.zeros(steps), np.eye(steps)[-1], attrs)
+            attrs = {
+                "suite": suite,
+                "task_index": int(index),
+                "task_name": key,
+                "success": d < demos_per_task - failures,
+            }
+            demo = Demo(
+                f"demo_{d}",
+                actions,
+                np.zeros((steps, 3)),
+                obs,
+                np.roll(obs, -1, 0),
+                np.zeros(steps),
+                np.eye(steps)[-1],
+                attrs,
+            )
             writer.append(demo, state_layout=layout)
     return writer.finish()
 
@@ -87,8 +104,15 @@ def test_training_fits_the_expert_far_better_than_initialisation(demos, tmp_path
     train_policy([demos], str(tmp_path / "init"), epochs=1, lr=0.0, seed=0, **SMALL)
     assert trained["tasks"] == sorted(LAYOUTS) and trained["num_samples"] == 2 * 5 * 30
     assert trained["loss_history"][-1] < trained["loss_history"][0] - 3.0
-    (arm_before, gripper_before), (arm_after, gripper_after) = (fit_error(load_policy(str(tmp_path / d))) for d in ("init", "bc"))
-    assert arm_after < 0.3 * arm_before and gripper_after > 0.85 > gripper_before, (arm_before, arm_after, gripper_before, gripper_after)
+    (arm_before, gripper_before), (arm_after, gripper_after) = (
+        fit_error(load_policy(str(tmp_path / d))) for d in ("init", "bc")
+    )
+    assert arm_after < 0.3 * arm_before and gripper_after > 0.85 > gripper_before, (
+        arm_before,
+        arm_after,
+        gripper_before,
+        gripper_after,
+    )
 
 
 def test_resume_after_a_crash_equals_an_uninterrupted_run(demos, tmp_path):
@@ -161,7 +185,9 @@ def test_sampling_policy_acts_by_seeded_draws_apart_from_the_candidates(policy_d
     assert not np.array_equal(drawn[0], mode(obs))  # a draw, not the most likely component's mean
     assert not np.array_equal(drawn[0], drawn[1])  # a new draw at every decision
     assert np.abs(np.array(drawn)).max() <= 1.0
-    np.testing.assert_array_equal(first_actions(3, with_candidates=True), drawn)  # candidates draw from their own stream
+    np.testing.assert_array_equal(
+        first_actions(3, with_candidates=True), drawn
+    )  # candidates draw from their own stream
     assert not np.array_equal(first_actions(4, with_candidates=False)[0], drawn[0])
 
 
@@ -281,17 +307,43 @@ def test_train_policy_cli_passes_its_options_and_refuses_in_one_line(tmp_path, c
 
     data = write_demos(tmp_path / "mixed.hdf5", demos_per_task=3, steps=6, failures=1)
     out = tmp_path / "cli"
-    args = ["train-policy", data, "--out", str(out), "--epochs", "1", "--seed", "3", "--history", "2", "--modes", "2",
-            "--chunk", "2", "--successful-only", "--no-task-film", "--obs-noise", "0.1"]
+    args = [
+        "train-policy",
+        data,
+        "--out",
+        str(out),
+        "--epochs",
+        "1",
+        "--seed",
+        "3",
+        "--history",
+        "2",
+        "--modes",
+        "2",
+        "--chunk",
+        "2",
+        "--successful-only",
+        "--no-task-film",
+        "--obs-noise",
+        "0.1",
+    ]
     assert main(args) == 0
     training = json.load(open(out / "config.json"))["training"]
     config = training["config"]
-    assert (config["seed"], config["history"], config["modes"], config["chunk"], config["obs_noise"]) == (3, 2, 2, 2, 0.1)
+    assert (config["seed"], config["history"], config["modes"], config["chunk"], config["obs_noise"]) == (
+        3,
+        2,
+        2,
+        2,
+        0.1,
+    )
     assert config["task_film"] is False and training["successful_only"] is True
     assert training["num_samples"] == 2 * 2 * 6  # the failed demo of each task was left out
     capsys.readouterr()
     assert main(["train-policy", data, "--out", str(tmp_path / "bad"), "--obs-noise", "-1"]) == 2
-    assert capsys.readouterr().err.strip().splitlines() == ["elegant train-policy: error: train_policy: obs_noise must be >= 0, got -1.0"]
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "elegant train-policy: error: train_policy: obs_noise must be >= 0, got -1.0"
+    ]
 
 
 def test_chunk_targets_are_the_next_actions_with_the_last_repeated_past_the_end():
@@ -317,9 +369,16 @@ def test_observation_noise_jitters_only_the_states_a_task_has_and_is_seeded():
     from elegant.policies.bc_train import _Windows
 
     # libero_object/1 has 5 state dims, padded to the 8 of libero_object/0
-    data = DemoSet(LAYOUTS, [Episode("libero_object/0", np.zeros((4, 8)), np.zeros((4, 7), np.float32)),
-                             Episode("libero_object/1", np.zeros((4, 5)), np.zeros((4, 7), np.float32))])
-    stats = {k: {"mean": np.zeros(sum(s for _, s in v)), "std": np.ones(sum(s for _, s in v))} for k, v in LAYOUTS.items()}
+    data = DemoSet(
+        LAYOUTS,
+        [
+            Episode("libero_object/0", np.zeros((4, 8)), np.zeros((4, 7), np.float32)),
+            Episode("libero_object/1", np.zeros((4, 5)), np.zeros((4, 7), np.float32)),
+        ],
+    )
+    stats = {
+        k: {"mean": np.zeros(sum(s for _, s in v)), "std": np.ones(sum(s for _, s in v))} for k, v in LAYOUTS.items()
+    }
     windows = _Windows(data, BCFeatures(TaskFeatureEncoder(LAYOUTS), stats, history=2))
     index = torch.arange(8)
     clean, _ = windows.batch(index)
@@ -390,7 +449,9 @@ def test_policies_record_their_task_conditioning_and_older_ones_load_without_it(
     assert json.load(open(os.path.join(policy_dir, "config.json")))["model"]["task_dim"] == len(LAYOUTS)
     assert load_policy(policy_dir).net.film is not None
     out = tmp_path / "plain"
-    train_policy([write_demos(tmp_path / 'd.hdf5', demos_per_task=2, steps=5)], str(out), epochs=1, task_film=False, **SMALL)
+    train_policy(
+        [write_demos(tmp_path / "d.hdf5", demos_per_task=2, steps=5)], str(out), epochs=1, task_film=False, **SMALL
+    )
     config = json.load(open(out / "config.json"))
     assert config["model"]["task_dim"] == 0
     del config["model"]["task_dim"]  # as written before FiLM existed

@@ -1,23 +1,40 @@
 """The policy protocol and its adapters: callables, LeRobot-style policies, TorchRL modules."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
 from tensordict.nn import (
-    NormalParamExtractor, ProbabilisticTensorDictModule, ProbabilisticTensorDictSequential, TensorDictModule,
+    NormalParamExtractor,
+    ProbabilisticTensorDictModule,
+    ProbabilisticTensorDictSequential,
+    TensorDictModule,
 )
 from torch import nn
 
 from base_suites.runtime.errors import UserInputError
 from elegant.policies import (
-    TORCHRL_LIBERO_STATE, CallablePolicy, GaussianCandidates, LayoutSlice, LeRobotPolicy, Policy, TorchRLPolicy, as_policy,
+    TORCHRL_LIBERO_STATE,
+    CallablePolicy,
+    GaussianCandidates,
+    LayoutSlice,
+    LeRobotPolicy,
+    Policy,
+    TorchRLPolicy,
+    as_policy,
     lerobot_libero_state,
 )
 
 torch.set_num_threads(1)
 
-LAYOUT = [["robot0_eef_pos", 3], ["robot0_eef_quat", 4], ["robot0_gripper_qpos", 2], ["robot0_joint_pos", 7], ["bowl_1/pos", 3]]
+LAYOUT = [
+    ["robot0_eef_pos", 3],
+    ["robot0_eef_quat", 4],
+    ["robot0_gripper_qpos", 2],
+    ["robot0_joint_pos", 7],
+    ["bowl_1/pos", 3],
+]
 METADATA = {"suite": "libero_object", "task_index": 0, "instruction": "pick up the bowl", "state_layout": LAYOUT}
 
 
@@ -106,7 +123,9 @@ def test_callable_with_own_sample_and_reset_is_delegated():
     policy.reset(METADATA)
     assert inner.resets == 1
     with pytest.raises(UserInputError, match=r"expected \(3, 7\)"):
-        CallablePolicy(type("Bad", (), {"__call__": lambda s, o: np.zeros(7), "sample": lambda s, o, n: np.zeros((n, 6))})()).sample(obs_of(0), 3)
+        CallablePolicy(
+            type("Bad", (), {"__call__": lambda s, o: np.zeros(7), "sample": lambda s, o, n: np.zeros((n, 6))})()
+        ).sample(obs_of(0), 3)
 
 
 def test_full_policies_pass_through():
@@ -172,7 +191,9 @@ def test_state_selection_by_layout_name():
     half_turn_z = np.zeros(19)
     half_turn_z[3:7] = [0.0, 0.0, np.sin(np.pi / 4), np.cos(np.pi / 4)]  # (x, y, z, w): 90 deg about z
     np.testing.assert_allclose(lerobot_libero_state(half_turn_z, METADATA)[3:6], [0.0, 0.0, np.pi / 2])
-    np.testing.assert_array_equal(lerobot_libero_state(np.r_[np.zeros(6), 1.0, np.zeros(12)], METADATA)[3:6], np.zeros(3))
+    np.testing.assert_array_equal(
+        lerobot_libero_state(np.r_[np.zeros(6), 1.0, np.zeros(12)], METADATA)[3:6], np.zeros(3)
+    )
     with pytest.raises(UserInputError, match="call reset"):
         TORCHRL_LIBERO_STATE(state, None)
     with pytest.raises(UserInputError, match="no entries.*plate"):
@@ -217,7 +238,9 @@ def test_torchrl_probabilistic_module_samples_its_distribution_reproducibly():
     net = nn.Sequential(nn.Linear(19, 14), NormalParamExtractor())
     module = ProbabilisticTensorDictSequential(
         TensorDictModule(net, in_keys=[("observation", "state")], out_keys=["loc", "scale"]),
-        ProbabilisticTensorDictModule(in_keys=["loc", "scale"], out_keys=["action"], distribution_class=torch.distributions.Normal),
+        ProbabilisticTensorDictModule(
+            in_keys=["loc", "scale"], out_keys=["action"], distribution_class=torch.distributions.Normal
+        ),
     )
     policy = as_policy(module, seed=11)
     assert policy.stochastic

@@ -1,4 +1,5 @@
 """Reports from synthetic run directories: report.md and non-empty PNGs, side-by-side comparison, robustness."""
+
 import json
 
 import pytest
@@ -18,8 +19,14 @@ def make_run(path, mode, successes, perturbation=None, with_q=True, **config_fie
         steps = 30
         intervened = [t in (12, 20 + i) for t in range(steps)]
         trace = {
-            "task": f"libero_goal/{i % 2}", "episode": i, "init_index": i, "mode": mode, "success": ok, "elegant": ok and i % 2 == 0,
-            "violated": [] if ok else ["collision"], "jiti": {},
+            "task": f"libero_goal/{i % 2}",
+            "episode": i,
+            "init_index": i,
+            "mode": mode,
+            "success": ok,
+            "elegant": ok and i % 2 == 0,
+            "violated": [] if ok else ["collision"],
+            "jiti": {},
             "segments": {"collision": [ok, True]},
             "decisions": {
                 "step": list(range(steps)),
@@ -32,13 +39,43 @@ def make_run(path, mode, successes, perturbation=None, with_q=True, **config_fie
         }
         name = f"traces/libero_goal_{i % 2}_{i}.json"
         (path / name).write_text(json.dumps(trace))
-        records.append({"task": trace["task"], "episode": i, "init_index": i, "seed": 100 + i, "success": ok, "elegant": trace["elegant"], "violated": trace["violated"],
-                        "interventions": sum(intervened), "overrides": 1, "steps": steps, "decision_time": 1e-4,
-                        "env_step_time": 1e-2, "trace": name})
-    config = {"suite": "libero_goal", "tasks": [0, 1], "policy": "/p", "critic": "/c", "mode": mode, "episodes": len(successes), "seed": 0,
-              "perturbation": perturbation, "max_steps": None, "obs": "lowdim",
-              "jiti": {"window": 10, "threshold": 1.0, "threshold_mode": "absolute", "n_candidates": 16, "policy_adapter": "BCPolicy"},
-              **config_fields}
+        records.append(
+            {
+                "task": trace["task"],
+                "episode": i,
+                "init_index": i,
+                "seed": 100 + i,
+                "success": ok,
+                "elegant": trace["elegant"],
+                "violated": trace["violated"],
+                "interventions": sum(intervened),
+                "overrides": 1,
+                "steps": steps,
+                "decision_time": 1e-4,
+                "env_step_time": 1e-2,
+                "trace": name,
+            }
+        )
+    config = {
+        "suite": "libero_goal",
+        "tasks": [0, 1],
+        "policy": "/p",
+        "critic": "/c",
+        "mode": mode,
+        "episodes": len(successes),
+        "seed": 0,
+        "perturbation": perturbation,
+        "max_steps": None,
+        "obs": "lowdim",
+        "jiti": {
+            "window": 10,
+            "threshold": 1.0,
+            "threshold_mode": "absolute",
+            "n_candidates": 16,
+            "policy_adapter": "BCPolicy",
+        },
+        **config_fields,
+    }
     summary = {"config": config, **summarize(records)}
     (path / "summary.json").write_text(json.dumps(summary))
     (path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
@@ -57,7 +94,10 @@ def test_run_report_writes_markdown_and_plots(tmp_path):
     assert_png(tmp_path / "run" / "success_esr.png")
     assert_png(tmp_path / "run" / "q_trace.png")
     md = (tmp_path / "run" / "report.md").read_text()
-    assert "| success rate [95% interval] | 75.0% [30.1%, 95.4%] |" in md and "| ESR (elegant success rate) [95% interval] | 50.0% [15.0%, 85.0%] |" in md
+    assert (
+        "| success rate [95% interval] | 75.0% [30.1%, 95.4%] |" in md
+        and "| ESR (elegant success rate) [95% interval] | 50.0% [15.0%, 85.0%] |" in md
+    )
     assert "| succeeded, but violated: collision | 0.0% |" in md
     assert "| libero_goal/1 | 2 | 50.0% | 0.0% |" in md and "## Q trace: libero_goal/0, episode 0" in md
     assert "- policy: `/p` (policy act: mode)" in md  # a run from before the act was recorded
@@ -70,7 +110,10 @@ def test_run_report_without_critic_has_no_q_trace(tmp_path):
     summary, records = make_run(tmp_path / "run", "base", [True, False], with_q=False)
     files = write_run_report(tmp_path / "run", summary, records)
     assert [f.name for f in files] == ["report.md", "success_esr.png"]
-    assert not (tmp_path / "run" / "q_trace.png").exists() and "Q trace" not in (tmp_path / "run" / "report.md").read_text()
+    assert (
+        not (tmp_path / "run" / "q_trace.png").exists()
+        and "Q trace" not in (tmp_path / "run" / "report.md").read_text()
+    )
 
 
 def test_compare_runs_side_by_side_with_robustness(tmp_path):
@@ -79,7 +122,10 @@ def test_compare_runs_side_by_side_with_robustness(tmp_path):
     make_run(tmp_path / "base", "base", [True, False, True, False])
     result = compare_runs([tmp_path / "ori", tmp_path / "init", tmp_path / "base"], out=tmp_path / "cmp")
     assert [r["label"] for r in result["runs"]] == ["ori (jiti)", "init (jiti)", "base (base)"]
-    assert "| success rate [95% interval] | 75.0% [30.1%, 95.4%] | 25.0% [4.6%, 69.9%] | 50.0% [15.0%, 85.0%] |" in result["markdown"]
+    assert (
+        "| success rate [95% interval] | 75.0% [30.1%, 95.4%] | 25.0% [4.6%, 69.9%] | 50.0% [15.0%, 85.0%] |"
+        in result["markdown"]
+    )
     (group,) = result["robustness"].values()  # the base run has no unperturbed partner of its own mode
     assert group["success"]["gap"] == {"init": 0.5} and group["success"]["pro"] == 0.25
     assert group["elegant"]["acc_ori"] == 0.5 and group["elegant"]["acc"] == {"init": 0.25}
@@ -97,9 +143,14 @@ def test_compare_runs_pairs_later_runs_with_the_first_on_shared_starts(tmp_path)
     result = compare_runs([tmp_path / "base", tmp_path / "jiti"])
     (paired,) = result["paired"]
     assert paired["run"] == "jiti (jiti)" and paired["success"]["pairs"] == 4
-    assert (paired["success"]["only_after"], paired["success"]["only_before"]) == (2, 0) and paired["success"]["p_value"] == 0.5
+    assert (paired["success"]["only_after"], paired["success"]["only_before"]) == (2, 0) and paired["success"][
+        "p_value"
+    ] == 0.5
     assert paired["elegant"]["difference"] == 0.25  # episode 2 (even index) turns elegant
-    assert "| jiti (jiti) | 4 | +50.0 points (2 gained, 0 lost; p = 0.5) | +25.0 points (1 gained, 0 lost; p = 1) |" in result["markdown"]
+    assert (
+        "| jiti (jiti) | 4 | +50.0 points (2 gained, 0 lost; p = 0.5) | +25.0 points (1 gained, 0 lost; p = 1) |"
+        in result["markdown"]
+    )
 
 
 def test_compare_runs_recomputes_metrics_from_the_episodes(tmp_path):

@@ -1,14 +1,15 @@
 """Policy rollouts recorded as a dataset (`elegant rollouts`), on the real simulator: the episodes start
 where evaluation episodes would, exploration is recorded and seeded, an interrupted file resumes to the
 same content, and `annotate_file` labels the result like any demo file."""
+
 import numpy as np
 import pytest
+from conftest import interrupted_at_second_episode
 
 from annotations import CRITERIA, DemoFile, annotate_file
 from base_suites import UserInputError, make_env
-from elegant.evaluation.runner import episode_start
 from elegant.evaluation.rollouts import branch_points_reached, branch_step, collect_rollouts
-from conftest import interrupted_at_second_episode
+from elegant.evaluation.runner import episode_start
 from itc import ITCMonitor
 
 pytestmark = pytest.mark.sim
@@ -28,8 +29,20 @@ class Lower:
 
 
 def collect_into(path, episodes=2, **kw):
-    return collect_rollouts(SUITE, [TASK], Lower(), episodes, str(path), explore=0.5, trust_radius=0.3, init_states=INITS,
-                            seed=4, max_steps=STEPS, progress=False, **kw)
+    return collect_rollouts(
+        SUITE,
+        [TASK],
+        Lower(),
+        episodes,
+        str(path),
+        explore=0.5,
+        trust_radius=0.3,
+        init_states=INITS,
+        seed=4,
+        max_steps=STEPS,
+        progress=False,
+        **kw,
+    )
 
 
 def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkeypatch):
@@ -48,8 +61,20 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
 
     interrupted_at_second_episode(monkeypatch, lambda: collect_into(tmp_path / "cut.hdf5"))
     with pytest.raises(UserInputError, match="cannot resume with different rollout"):
-        collect_rollouts(SUITE, [TASK], Lower(), 2, str(tmp_path / "cut.hdf5"), explore=0.3, trust_radius=0.3, init_states=INITS,
-                         seed=4, max_steps=STEPS, progress=False, resume=True)
+        collect_rollouts(
+            SUITE,
+            [TASK],
+            Lower(),
+            2,
+            str(tmp_path / "cut.hdf5"),
+            explore=0.3,
+            trust_radius=0.3,
+            init_states=INITS,
+            seed=4,
+            max_steps=STEPS,
+            progress=False,
+            resume=True,
+        )
     resumed = collect_into(tmp_path / "cut.hdf5", resume=True)
     parallel = collect_into(tmp_path / "parallel.hdf5", workers=2)  # each episode on its own worker process
     for other in (resumed, parallel):
@@ -83,11 +108,24 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
 
 def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_path, capsys):
     # 3 starts, points [2, 5]: episodes 0-2 branch at step 2, 3-5 at step 5, each start once per point
-    summary = collect_rollouts(SUITE, [TASK], Lower(), 6, str(tmp_path / "branches.hdf5"), explore_at=[2, 5], trust_radius=0.3,
-                               init_states=INITS, seed=4, max_steps=STEPS, progress=False)
+    summary = collect_rollouts(
+        SUITE,
+        [TASK],
+        Lower(),
+        6,
+        str(tmp_path / "branches.hdf5"),
+        explore_at=[2, 5],
+        trust_radius=0.3,
+        init_states=INITS,
+        seed=4,
+        max_steps=STEPS,
+        progress=False,
+    )
     with DemoFile(summary["out"]) as f:
         demos = list(f)
-    assert [d.attrs["explored_steps"] for d in demos] == [[2]] * 3 + [[5]] * 3 and summary["explored_per_episode"] == 1.0
+    assert [d.attrs["explored_steps"] for d in demos] == [[2]] * 3 + [[5]] * 3 and summary[
+        "explored_per_episode"
+    ] == 1.0
     assert [branch_step([2, 5], i, 3) for i in range(7)] == [2, 2, 2, 5, 5, 5, 2]
     for early, late in zip(demos[:3], demos[3:]):
         assert early.attrs["init_state_index"] == late.attrs["init_state_index"]
@@ -98,24 +136,49 @@ def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_
         assert early.actions[2][0] != 0.0 and late.actions[2][0] == 0.0 and late.actions[5][0] != 0.0
     assert "warning" not in capsys.readouterr().err  # 6 episodes reach both points of 3 starts
     with pytest.raises(UserInputError, match="not both"):
-        collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), explore=0.1, explore_at=[2], progress=False)
+        collect_rollouts(
+            SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), explore=0.1, explore_at=[2], progress=False
+        )
 
 
 def test_branch_points_no_episode_reaches_are_named(tmp_path, capsys):
     assert branch_points_reached([2, 5, 9], 4, 3) == [2, 5] and branch_points_reached([2, 5, 9], 9, 3) == [2, 5, 9]
     # 2 episodes from 3 starts reach only the first point; the file is still written, with one warning line
-    summary = collect_rollouts(SUITE, [TASK], Lower(), 2, str(tmp_path / "short.hdf5"), explore_at=[2, 5], trust_radius=0.3,
-                               init_states=INITS, seed=4, max_steps=STEPS, progress=False)
+    summary = collect_rollouts(
+        SUITE,
+        [TASK],
+        Lower(),
+        2,
+        str(tmp_path / "short.hdf5"),
+        explore_at=[2, 5],
+        trust_radius=0.3,
+        init_states=INITS,
+        seed=4,
+        max_steps=STEPS,
+        progress=False,
+    )
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["rollouts: warning: 2 episodes per task branch only at steps [2] of --explore-at [2, 5]; "
-                   "6 would branch every start at every point"]
+    assert err == [
+        "rollouts: warning: 2 episodes per task branch only at steps [2] of --explore-at [2, 5]; "
+        "6 would branch every start at every point"
+    ]
     assert summary["episodes"] == 2
 
 
 def test_nudged_rollouts_start_apart_and_replay_from_their_records(tmp_path):
     # two episodes from one init state: without the nudge they would start identically
-    summary = collect_rollouts(SUITE, [TASK], Lower(), 2, str(tmp_path / "nudged.hdf5"), init_states=[3], seed=4,
-                               max_steps=STEPS, perturbation="init@nudge", progress=False)
+    summary = collect_rollouts(
+        SUITE,
+        [TASK],
+        Lower(),
+        2,
+        str(tmp_path / "nudged.hdf5"),
+        init_states=[3],
+        seed=4,
+        max_steps=STEPS,
+        perturbation="init@nudge",
+        progress=False,
+    )
     with DemoFile(summary["out"]) as f:
         demos = list(f)
         assert f.attrs["collection"]["perturbation"] == "init@nudge"
@@ -137,7 +200,9 @@ def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
 
 
 def test_only_a_bc_policy_directory_can_be_asked_to_act_by_sampling(tmp_path):
-    with pytest.raises(UserInputError, match="policy act 'sample' applies to a BC policy directory; a Lower decides its own actions"):
+    with pytest.raises(
+        UserInputError, match="policy act 'sample' applies to a BC policy directory; a Lower decides its own actions"
+    ):
         collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), policy_act="sample", progress=False)
     assert not list(tmp_path.iterdir())
 
@@ -145,7 +210,9 @@ def test_only_a_bc_policy_directory_can_be_asked_to_act_by_sampling(tmp_path):
 def test_init_state_ranges_parse_and_bad_ones_are_refused_in_one_line():
     from elegant.cli import parse_indices
 
-    assert parse_indices("0-3,7, 9-10", "--init-states") == [0, 1, 2, 3, 7, 9, 10] and parse_indices(None, "--x") is None
+    assert (
+        parse_indices("0-3,7, 9-10", "--init-states") == [0, 1, 2, 3, 7, 9, 10] and parse_indices(None, "--x") is None
+    )
     for bad, message in (("3-", "expected indices and ranges"), ("9-5", "runs backwards"), ("a", "expected indices")):
         with pytest.raises(UserInputError, match=message):
             parse_indices(bad, "--init-states")

@@ -1,4 +1,5 @@
 """The suite catalogue: every shipped suite lists its tasks with goals and init states."""
+
 import pytest
 
 from base_suites import UserInputError, get_task, list_suites, list_tasks, task_specs

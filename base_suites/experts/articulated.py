@@ -5,6 +5,7 @@ from above and below, then pushed shut with the closed fingertips on the drawer 
 down. Doors swing along the arc of their free edge, opening the way LIBERO's own open ranges say. Knobs
 are grasped by their grip bar and turned by rotating the wrist about the knob's vertical hinge.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -155,10 +156,19 @@ def pull_out(ctx: SkillContext, target: str) -> Actions:
     hook[:2] += opening[:2] * (near_edge - HOOK_INSIDE)
     hook[2] = region.bottom + HOOK_DEPTH
     rot = hand_down(view, float(np.arctan2(opening[1], opening[0])), at=hook, shortest=True)  # fingers across the pull
-    yield from ctx.goto(np.array([*hook[:2], max(view.eef_position()[2], hook[2] + 0.10)]), rot, CLOSE, tol=0.02, rot_tol=0.15, max_steps=100)
+    yield from ctx.goto(
+        np.array([*hook[:2], max(view.eef_position()[2], hook[2] + 0.10)]),
+        rot,
+        CLOSE,
+        tol=0.02,
+        rot_tol=0.15,
+        max_steps=100,
+    )
     yield from ctx.goto(hook, rot, CLOSE, tol=0.008, max_steps=60, speed=0.6)
     out = lambda: pulled_short(view, target) < FULLY_OUT / 2  # noqa: E731
-    yield from ctx.goto(hook + opening * (pulled_short(view, target) + 0.01), rot, CLOSE, tol=0.01, max_steps=30, until=out)
+    yield from ctx.goto(
+        hook + opening * (pulled_short(view, target) + 0.01), rot, CLOSE, tol=0.01, max_steps=30, until=out
+    )
     yield from ctx.goto(view.eef_position() + np.array([0.0, 0.0, 0.10]), rot, CLOSE, tol=0.02, max_steps=30)
     return out()
 
@@ -169,7 +179,12 @@ def doorway(view: SimView, target: str) -> tuple[np.ndarray, float] | None:
     face). None for regions open from above, such as a stove's burner, whose knob is a hinge too.
     Objects go in through the doorway: a top-down carry sets them on the roof."""
     joints = view.articulation_joints(target) if target in view.regions else ()
-    if not joints or view.region_joints(target) or _is_slide(view, joints[0]) or floor_and_roof(view, target)[1] is None:
+    if (
+        not joints
+        or view.region_joints(target)
+        or _is_slide(view, joints[0])
+        or floor_and_roof(view, target)[1] is None
+    ):
         return None
     info = view.joint(joints[0])
     entity = _fixture(view, target)
@@ -270,7 +285,9 @@ def _point_down(ctx: SkillContext, opening: np.ndarray) -> Actions:
     view = ctx.view
     toward_base = view.robot_base_position()[:2] - view.eef_position()[:2]
     back = opening * LET_GO + np.array([*(RETREAT * toward_base / np.linalg.norm(toward_base)), 0.06])
-    yield from ctx.goto(view.eef_position() + back, pitched_down(view.eef_rotation()), OPEN, tol=0.03, rot_tol=TURN_TOL, max_steps=60)
+    yield from ctx.goto(
+        view.eef_position() + back, pitched_down(view.eef_rotation()), OPEN, tol=0.03, rot_tol=TURN_TOL, max_steps=60
+    )
 
 
 # Drawers are pushed shut with the closed fingertips on the front panel, the hand pointing down and
@@ -289,7 +306,14 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
     down = hand_down(view, yaw, at=handle, shortest=True)
     rot = rot_axis(np.cross(push, [0.0, 0.0, 1.0]), PUSH_PITCH) @ down
     start = handle + opening * PUSH_STANDOFF
-    yield from ctx.goto(np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.10)]), rot, CLOSE, tol=0.02, rot_tol=0.2, max_steps=100)
+    yield from ctx.goto(
+        np.array([*start[:2], max(view.eef_position()[2], handle[2] + 0.10)]),
+        rot,
+        CLOSE,
+        tol=0.02,
+        rot_tol=0.2,
+        max_steps=100,
+    )
     yield from ctx.goto(start, rot, CLOSE, tol=0.01, max_steps=80)
     is_closed = lambda: view.predicate(("close", target))  # noqa: E731
     for _ in range(3):
@@ -297,7 +321,9 @@ def _push_drawer(ctx: SkillContext, target: str) -> Actions:
         yield from ctx.goto(goal, rot, CLOSE, tol=0.02, max_steps=80, speed=0.6, until=is_closed)
         if is_closed():
             break
-    yield from ctx.goto(view.eef_position() + opening * 0.05 + np.array([0, 0, 0.08]), down, OPEN, tol=0.02, max_steps=30)
+    yield from ctx.goto(
+        view.eef_position() + opening * 0.05 + np.array([0, 0, 0.08]), down, OPEN, tol=0.02, max_steps=30
+    )
     return view.predicate(("close", target))
 
 
@@ -321,6 +347,7 @@ def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
     sign = view.opening_sign(entity) * (1.0 if opening else -1.0)
     rot = grasp_rotation(0.0)
     query = "open" if opening else "close"
+
     def along_arc(angle: float) -> np.ndarray:
         point = anchor + rot_axis(axis, sign * angle) @ arm * 0.85
         point[2] = edge[2] if abs(axis[2]) > 0.9 else point[2]
@@ -338,7 +365,6 @@ def _swing_door(ctx: SkillContext, target: str, opening: bool) -> Actions:
             break
     yield from ctx.goto(view.eef_position() + np.array([0, 0, 0.08]), rot, OPEN, tol=0.03, max_steps=30)
     return view.predicate((query, target))
-
 
 
 KNOB_STEP, KNOB_STEPS = 0.15, 7  # rad per wrist increment, and at most this many increments

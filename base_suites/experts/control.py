@@ -4,6 +4,7 @@ OSC moves slower than its nominal 0.05 m / 0.5 rad per step and leaves a few cen
 error near the robot base, so targets are tracked on *measured* positions with a proportional term plus
 a small integral term, and a move is done only when the measured error is within tolerance.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -61,8 +62,9 @@ def pitched_down(current: np.ndarray) -> np.ndarray:
 WRIST_LIMIT = 2.6  # rad: keep the Panda's last joint (limit 2.90) clear of its stop
 
 
-def nearest_grasp_rotation(yaw: float, current: np.ndarray, wrist: float, then: float = 0.0, swing: float = 0.0,
-                           shortest: bool = False) -> np.ndarray:
+def nearest_grasp_rotation(
+    yaw: float, current: np.ndarray, wrist: float, then: float = 0.0, swing: float = 0.0, shortest: bool = False
+) -> np.ndarray:
     """`grasp_rotation(yaw)`, or the same grasp with the hand turned half a turn (a parallel gripper is
     symmetric) when only that keeps the last joint (now at `wrist`) off its stop, also after a planned
     further turn of `then` rad about world z (a knob turn). With the hand pointing down a turn of d about
@@ -89,14 +91,18 @@ def finger_axis(yaw: float) -> np.ndarray:
 class Servo:
     """Turns a target pose into one OSC_POSE action from the measured pose (PI on position, P on rotation)."""
 
-    def __init__(self, gain: float = 1.6, integral_gain: float = 0.08, rot_gain: float = 1.2, max_speed: float = 1.0) -> None:
+    def __init__(
+        self, gain: float = 1.6, integral_gain: float = 0.08, rot_gain: float = 1.2, max_speed: float = 1.0
+    ) -> None:
         self.gain, self.integral_gain, self.rot_gain, self.max_speed = gain, integral_gain, rot_gain, max_speed
         self._integral = np.zeros(3)
 
     def reset_integral(self) -> None:
         self._integral = np.zeros(3)
 
-    def action(self, pos_err: np.ndarray, rot_err: np.ndarray, gripper: float, speed: float | None = None) -> np.ndarray:
+    def action(
+        self, pos_err: np.ndarray, rot_err: np.ndarray, gripper: float, speed: float | None = None
+    ) -> np.ndarray:
         limit = self.max_speed if speed is None else speed
         self._integral = np.clip(self._integral + pos_err / POS_SCALE, -8, 8)
         move = self.gain * pos_err / POS_SCALE + self.integral_gain * self._integral

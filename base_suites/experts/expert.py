@@ -4,6 +4,7 @@ The goal's predicates become an ordered list of skills (pick-and-place for On/In
 for Open/Close/TurnOn/TurnOff); knobs drawn per episode make the execution sloppy in controlled,
 recorded ways while mostly still succeeding, which is what elegance labels need.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Mapping
@@ -12,16 +13,24 @@ from typing import Any
 import numpy as np
 
 from base_suites.env import LiberoEnv
-from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.experts import articulated, skills
 from base_suites.experts.control import OPEN
 from base_suites.experts.geometry import handle_pinch
 from base_suites.experts.skills import SkillContext
+from base_suites.runtime.errors import UserInputError, unknown_choice
 
 EXPERT_VERSION = "scripted-11"
 KNOBS = ("collide", "drop", "misplace", "tilt", "wrong_order", "jerky", "regrasp")
 # "mixed": every knob possible, most episodes still clean in all but one or two respects.
-MIXED_RATES = {"collide": 0.2, "drop": 0.2, "misplace": 0.15, "tilt": 0.2, "wrong_order": 0.15, "jerky": 0.15, "regrasp": 0.15}
+MIXED_RATES = {
+    "collide": 0.2,
+    "drop": 0.2,
+    "misplace": 0.15,
+    "tilt": 0.2,
+    "wrong_order": 0.15,
+    "jerky": 0.15,
+    "regrasp": 0.15,
+}
 QUALITY_PRESETS = {"clean": {k: 0.0 for k in KNOBS}, "mixed": MIXED_RATES}
 
 
@@ -83,7 +92,9 @@ def plan_skills(goal: tuple[tuple[str, ...], ...], view) -> list[tuple[tuple[str
             if kind == "in" and container is not None and target not in opened_for:
                 if not articulated.is_open(view, target):
                     if articulated.under_opened(view, target, obj):
-                        steps.append((1, ("clear", obj, target), lambda c, o=obj, t=target: _clear_drawer_path(c, o, t)))
+                        steps.append(
+                            (1, ("clear", obj, target), lambda c, o=obj, t=target: _clear_drawer_path(c, o, t))
+                        )
                     steps.append((1, ("open", target), lambda c, t=target: articulated.open_(c, t)))
                 elif articulated.pulled_short(view, target) > articulated.FULLY_OUT:
                     steps.append((1, ("pull_out", target), lambda c, t=target: articulated.pull_out(c, t)))

@@ -7,6 +7,7 @@ they are open at the top (bowls, plates), by the rim, radially. It then keeps th
 footprint (~21 cm along the closing direction) stays clearest of the neighbours, since the hand hitting
 neighbours is the main failure.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -127,7 +128,9 @@ def _covers_centre(parts: np.ndarray, shape: Shape) -> bool:
 
 
 # 9 x 9 x 3 points per box: ~1 cm apart on a 9 cm pot body, finer than a finger's band.
-_LATTICE = np.array([[a, b, c] for a in np.linspace(-1, 1, 9) for b in np.linspace(-1, 1, 9) for c in np.linspace(-1, 1, 3)])
+_LATTICE = np.array(
+    [[a, b, c] for a in np.linspace(-1, 1, 9) for b in np.linspace(-1, 1, 9) for c in np.linspace(-1, 1, 3)]
+)
 
 
 def fill_boxes(parts: np.ndarray, spacing: float | None = None) -> np.ndarray:
@@ -139,7 +142,12 @@ def fill_boxes(parts: np.ndarray, spacing: float | None = None) -> np.ndarray:
     ex, ey, ez = (parts[:, 4] - origin) / 2, (parts[:, 2] - origin) / 2, (parts[:, 1] - origin) / 2
     centre = origin + ex + ey + ez
     if spacing is None:
-        filled = centre[:, None] + _LATTICE[None, :, :1] * ex[:, None] + _LATTICE[None, :, 1:2] * ey[:, None] + _LATTICE[None, :, 2:] * ez[:, None]
+        filled = (
+            centre[:, None]
+            + _LATTICE[None, :, :1] * ex[:, None]
+            + _LATTICE[None, :, 1:2] * ey[:, None]
+            + _LATTICE[None, :, 2:] * ez[:, None]
+        )
         return filled.reshape(-1, 3)
     boxes = []
     for c, *edges in zip(centre, ex, ey, ez):
@@ -171,7 +179,11 @@ def _part_pinches(parts: np.ndarray) -> list[Grasp]:
             along = np.abs(rel @ axis[:2])
             across = np.abs(rel @ np.array([-axis[1], axis[0]]))
             # Where the fingers pass: from their open position down to closed on the part.
-            in_finger = (across < FINGER_HALF_WIDTH) & (along > width / 2 + 0.003) & (along < OPEN_HALF_SPAN + FINGER_THICKNESS / 2)
+            in_finger = (
+                (across < FINGER_HALF_WIDTH)
+                & (along > width / 2 + 0.003)
+                & (along < OPEN_HALF_SPAN + FINGER_THICKNESS / 2)
+            )
             if not in_finger.any():
                 best = (width, float(yaw))
         if best is not None:
@@ -198,7 +210,9 @@ def _rim_grasps(view: SimView, entity: str, yaw: float) -> list[Grasp]:
     outward = radial[:2] / np.linalg.norm(radial[:2])
     reach = local[:, :2] @ outward
     centre = local[:, :2].mean(axis=0)
-    centre += ((reach.max() + reach.min()) / 2 - centre @ outward) * outward  # midway across the wall along the closing axis
+    centre += (
+        (reach.max() + reach.min()) / 2 - centre @ outward
+    ) * outward  # midway across the wall along the closing axis
     top = local[:, 2].max()
     grasps = []
     for side in (-1.0, 1.0):
@@ -207,8 +221,13 @@ def _rim_grasps(view: SimView, entity: str, yaw: float) -> list[Grasp]:
     return grasps
 
 
-def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destination: np.ndarray | None = None,
-                 also_avoid: np.ndarray | None = None) -> Grasp | None:
+def choose_grasp(
+    view: SimView,
+    entity: str,
+    prefer_yaw: float = 0.0,
+    destination: np.ndarray | None = None,
+    also_avoid: np.ndarray | None = None,
+) -> Grasp | None:
     """The clearest feasible top-down grasp of an object (pinch across a narrow side, a slender part,
     or the rim of an open object); None if none fits (flat plates are pushed instead). With the xy
     `destination` the object is to be carried to, a rim grasp that would put the hand beyond the arm's
@@ -241,7 +260,11 @@ def choose_grasp(view: SimView, entity: str, prefer_yaw: float = 0.0, destinatio
         # rim points on the robot's side: the object then hangs away from the robot and every later
         # move of the hand stays further inside the arm's reach.
         reach = float(np.linalg.norm(cand.position[:2] - base)) if cand.rim else 0.0
-        stretch = 0.0 if goal is None else max(0.0, float(np.linalg.norm(goal + cand.position[:2] - centre[:2] - base)) - REACH_LIMIT)
+        stretch = (
+            0.0
+            if goal is None
+            else max(0.0, float(np.linalg.norm(goal + cand.position[:2] - centre[:2] - base)) - REACH_LIMIT)
+        )
         value = min(clearance, 0.04) * 10 - 0.02 * abs(cand.yaw - prefer_yaw) - 1.0 * reach - STRETCH_PENALTY * stretch
         return value, Grasp(cand.position, cand.yaw, clearance, cand.rim)
 
@@ -275,8 +298,14 @@ def _pinch_height(shape: Shape) -> float:
     return max(shape.bottom + 0.012, shape.top - min(0.035, shape.height * 0.5))
 
 
-def carry_height(view: SimView, held: str, goal_xy: np.ndarray, margin: float = 0.05, clearance: float = 0.06,
-                 ahead_only: bool = False) -> float:
+def carry_height(
+    view: SimView,
+    held: str,
+    goal_xy: np.ndarray,
+    margin: float = 0.05,
+    clearance: float = 0.06,
+    ahead_only: bool = False,
+) -> float:
     """Height of the grip point that keeps the held object's bottom `margin` above everything in the
     corridor between where it is and where it goes (not above the whole scene: tall cabinets elsewhere
     would force needlessly high, slow carries). `ahead_only`: what stands behind the object's start
@@ -350,14 +379,16 @@ def slide_path(view: SimView, entity: str, goal_xy: np.ndarray) -> list[np.ndarr
         return [goal]
     tree = cKDTree(points)
     low = np.minimum(start, goal) - SLIDE_MARGIN
-    nx, ny = (np.ceil((np.maximum(start, goal) + SLIDE_MARGIN - low) / SLIDE_GRID).astype(int) + 1)
-    cells = low + SLIDE_GRID * np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), axis=-1).reshape(-1, 2)
+    nx, ny = np.ceil((np.maximum(start, goal) + SLIDE_MARGIN - low) / SLIDE_GRID).astype(int) + 1
+    cells = low + SLIDE_GRID * np.stack(np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij"), axis=-1).reshape(
+        -1, 2
+    )
     weight = np.where(tree.query(cells)[0] > radius + SLIDE_GAP, 1.0, BLOCKED_COST)
     rows, cols, costs = [], [], []
     index = np.arange(nx * ny).reshape(nx, ny)
     for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        a = index[max(0, -dx):nx - max(0, dx), max(0, -dy):ny - max(0, dy)].ravel()
-        b = index[max(0, dx):nx - max(0, -dx), max(0, dy):ny - max(0, -dy)].ravel()
+        a = index[max(0, -dx) : nx - max(0, dx), max(0, -dy) : ny - max(0, dy)].ravel()
+        b = index[max(0, dx) : nx - max(0, -dx), max(0, dy) : ny - max(0, -dy)].ravel()
         step = SLIDE_GRID * np.hypot(dx, dy) * (weight[a] + weight[b]) / 2
         rows += [a, b]
         cols += [b, a]
@@ -380,7 +411,7 @@ def _straighten(path: list[np.ndarray], tree, needed: float) -> list[np.ndarray]
     legs, i = [], 0
     while i < len(path) - 1:
         j = len(path) - 1
-        while j > i + 1 and _leg_clearance(tree, path[i], path[j]) < min(needed, clear[i:j + 1].min()) - 1e-9:
+        while j > i + 1 and _leg_clearance(tree, path[i], path[j]) < min(needed, clear[i : j + 1].min()) - 1e-9:
             j -= 1
         legs.append(path[j])
         i = j
@@ -401,8 +432,11 @@ WAY_OUT_STEP, WAY_OUT_REACH = 0.01, 0.20  # m: the shifts tried, every 16th of a
 WAY_OUT_DIRECTIONS = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 * np.pi, 16, endpoint=False)])
 
 
-def _around_held(view: SimView, held: str) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray], np.ndarray, np.ndarray]:
-    """The held object's filled footprint (xy) and the test of which xy points lie over it; the filled points, above its top, of whatever hangs over
+def _around_held(
+    view: SimView, held: str
+) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray], np.ndarray, np.ndarray]:
+    """The held object's filled footprint (xy) and the test of which xy points lie over it; the filled points, above
+    its top, of whatever hangs over
     it (an entity with a part above its top and over its footprint: an opened drawer, not a tall
     neighbour beside it); and the points of everything else within its height band, near enough to be
     swept through on a way out."""
@@ -475,7 +509,9 @@ def way_out(view: SimView, held: str, yaw: float) -> np.ndarray | None:
         moved = footprint + shift
         if overhead_tree.query(moved)[0].min() <= OVERHANG_GAP or inside(overhead[:, :2] - shift).any():
             return False
-        return len(hand_points) == 0 or _hand_footprint_distance(grip[:2] + shift, yaw, hand_points).min() > OVERHANG_GAP
+        return (
+            len(hand_points) == 0 or _hand_footprint_distance(grip[:2] + shift, yaw, hand_points).min() > OVERHANG_GAP
+        )
 
     def swept_clear(shift: np.ndarray) -> bool:
         steps = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(shift) / WAY_OUT_STEP) + 1))

@@ -4,6 +4,7 @@ Each skill is a generator that yields one action per env step and returns whethe
 so skills compose with `yield from` into task plans. Quality knobs (collide, drop, misplace, tilt,
 jerky, regrasp) are applied inside the skills where the behaviour belongs.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Generator
@@ -11,7 +12,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from base_suites.experts.control import CLOSE, OPEN, Servo, finger_axis, grasp_rotation, nearest_grasp_rotation, rot_z, rotation_error
+from base_suites.experts.control import (
+    CLOSE,
+    OPEN,
+    Servo,
+    finger_axis,
+    grasp_rotation,
+    nearest_grasp_rotation,
+    rot_z,
+    rotation_error,
+)
 from base_suites.experts.geometry import (
     OVERHANG_GAP,
     Grasp,
@@ -48,8 +58,17 @@ class SkillContext:
     servo: Servo = field(default_factory=Servo)
     events: list[str] = field(default_factory=list)
 
-    def goto(self, pos, rot, grip: float, tol: float = 0.008, rot_tol: float = 0.06, max_steps: int = 120, speed: float = 1.0,
-             until: Callable[[], bool] | None = None) -> Actions:
+    def goto(
+        self,
+        pos,
+        rot,
+        grip: float,
+        tol: float = 0.008,
+        rot_tol: float = 0.06,
+        max_steps: int = 120,
+        speed: float = 1.0,
+        until: Callable[[], bool] | None = None,
+    ) -> Actions:
         """Servo the grip point to `pos` with orientation `rot`; True once within tolerance, or as soon as
         `until()` holds (a drawer pulled open need not reach a point past its end stop)."""
         self.servo.reset_integral()
@@ -73,7 +92,9 @@ class SkillContext:
         for _ in range(steps):
             if until is not None and until():
                 break
-            yield self.servo.action(target - self.view.eef_position(), rotation_error(rot, self.view.eef_rotation()), grip)
+            yield self.servo.action(
+                target - self.view.eef_position(), rotation_error(rot, self.view.eef_rotation()), grip
+            )
         return True
 
     def release(self, rot=None, clearance: float = RELEASE_CLEARANCE, max_steps: int = 10) -> Actions:
@@ -81,10 +102,14 @@ class SkillContext:
         can then leave without dragging what it let go, and no step waits for the full stroke (half of
         it, at LIBERO's 20 Hz, is a quarter second per placement)."""
         held = self.view.gripper_opening()
-        return (yield from self.hold(OPEN, max_steps, rot, until=lambda: self.view.gripper_opening() >= held + clearance))
+        return (
+            yield from self.hold(OPEN, max_steps, rot, until=lambda: self.view.gripper_opening() >= held + clearance)
+        )
 
 
-def hand_down(view: SimView, yaw: float, at: np.ndarray | None = None, then: float = 0.0, shortest: bool = False) -> np.ndarray:
+def hand_down(
+    view: SimView, yaw: float, at: np.ndarray | None = None, then: float = 0.0, shortest: bool = False
+) -> np.ndarray:
     """The hand pointing down with grasp yaw `yaw`, turned so that the wrist stays off its stop when the
     hand gets to `at` (default: where it is) and, from there, turns `then` rad further about world z;
     `shortest`: of the two symmetric grasps, the one the hand turns to the short way."""
@@ -92,21 +117,33 @@ def hand_down(view: SimView, yaw: float, at: np.ndarray | None = None, then: flo
     here = view.eef_position()[:2]
     there = here if at is None else np.asarray(at, dtype=float)[:2]
     swing = float(np.arctan2(*(there - base)[::-1]) - np.arctan2(*(here - base)[::-1]))
-    return nearest_grasp_rotation(yaw, view.eef_rotation(), view.arm_joints()[6], then=then, swing=swing, shortest=shortest)
+    return nearest_grasp_rotation(
+        yaw, view.eef_rotation(), view.arm_joints()[6], then=then, swing=swing, shortest=shortest
+    )
 
 
 def _above(p: np.ndarray, z: float) -> np.ndarray:
     return np.array([p[0], p[1], z])
 
 
-def pick(ctx: SkillContext, obj: str, attempts: int = 3, destination: np.ndarray | None = None, grasp_with: Callable[[SimView, str], Grasp | None] | None = None,
-         lift: float = LIFT) -> Actions:
+def pick(
+    ctx: SkillContext,
+    obj: str,
+    attempts: int = 3,
+    destination: np.ndarray | None = None,
+    grasp_with: Callable[[SimView, str], Grasp | None] | None = None,
+    lift: float = LIFT,
+) -> Actions:
     """Top-down grasp of `obj` and lift by `lift` (m, less under an overhang); retries with a fresh
     grasp choice. The xy `destination` it will be carried to keeps the grasp one the arm can still set
     down there; `grasp_with` picks the grasp instead (a handle, for a carry through a doorway)."""
     view = ctx.view
     for attempt in range(attempts):
-        grasp = (grasp_with and grasp_with(view, obj)) or choose_grasp(view, obj, destination=destination) or narrowest_pinch(view, obj)
+        grasp = (
+            (grasp_with and grasp_with(view, obj))
+            or choose_grasp(view, obj, destination=destination)
+            or narrowest_pinch(view, obj)
+        )
         rot = hand_down(view, grasp.yaw, at=grasp.position)
         hover = max(view.eef_position()[2], grasp.position[2] + 0.12)
         target = grasp.position.copy()
@@ -221,7 +258,9 @@ def _xy(points: np.ndarray, cell: float) -> np.ndarray:
     return np.unique(np.round(points[:, :2] / cell), axis=0) * cell
 
 
-def _tightest_fit(boxes: np.ndarray, above: float, standing: np.ndarray, centre: np.ndarray, axes: np.ndarray, half: np.ndarray) -> np.ndarray:
+def _tightest_fit(
+    boxes: np.ndarray, above: float, standing: np.ndarray, centre: np.ndarray, axes: np.ndarray, half: np.ndarray
+) -> np.ndarray:
     """The spot in the region whose footprint keeps the most room, measured exactly enough for a fit
     with millimetres to spare (a 10.7 cm bowl into the 11.6 cm of drawer a cabinet leaves exposed). The
     coarse search measures room between point lattices, which cannot tell a footprint 3 mm clear of an
@@ -248,7 +287,9 @@ def _tightest_fit(boxes: np.ndarray, above: float, standing: np.ndarray, centre:
         (pose accuracy: a drawer's widest gap may lie at its side)."""
         rooms = np.array([((near - spot) @ normals.T + offsets).max(axis=1).min() for spot in spots])
         inside = (half - np.abs(outline[None] + ((spots - centre) @ axes)[:, None])).min(axis=(1, 2))
-        return spots[int(np.argmax(np.minimum(rooms, inside) - OFF_CENTRE_COST * np.linalg.norm(spots - centre, axis=1)))]
+        return spots[
+            int(np.argmax(np.minimum(rooms, inside) - OFF_CENTRE_COST * np.linalg.norm(spots - centre, axis=1)))
+        ]
 
     coarse = [np.arange(-INNER * h, INNER * h + 1e-9, 2 * SPOT_RESOLUTION) for h in half]
     best = roomiest(np.array([centre + axes @ np.array([u, v]) for u in coarse[0] for v in coarse[1]]))
@@ -318,7 +359,9 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     misplaced = "misplace" in ctx.knobs and isinstance(target, str)
     if misplaced:
         goal_xy = _misplaced_xy(ctx, target, obj, goal_xy)
-    z_carry = carry_height(view, obj, goal_xy, margin=LOW_CARRY, ahead_only=True) if low else carry_height(view, obj, goal_xy)
+    z_carry = (
+        carry_height(view, obj, goal_xy, margin=LOW_CARRY, ahead_only=True) if low else carry_height(view, obj, goal_xy)
+    )
     carry_rot = upright
     if "tilt" in ctx.knobs and isinstance(target, str):
         carry_rot = _tilt_rotation(ctx, yaw, np.deg2rad(ctx.rng.uniform(40, 60)))
@@ -327,7 +370,9 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     # Aim the *object* at the goal: correct for where it sits in the hand.
     for _ in range(3):
         offset = view.position(obj)[:2] - view.eef_position()[:2]
-        yield from ctx.goto(np.array([*(goal_xy - offset), z_carry]), carry_rot, CLOSE, tol=0.01, rot_tol=0.1, max_steps=60)
+        yield from ctx.goto(
+            np.array([*(goal_xy - offset), z_carry]), carry_rot, CLOSE, tol=0.01, rot_tol=0.1, max_steps=60
+        )
         if np.linalg.norm(view.position(obj)[:2] - goal_xy) < 0.015:
             break
     if carry_rot is not upright:
@@ -335,7 +380,9 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
     if "drop" in ctx.knobs and isinstance(target, str):
         release_z = carry_height(view, obj, goal_xy, margin=DROP_CLEARANCE)
         if view.eef_position()[2] < release_z:
-            yield from ctx.goto(_above(view.eef_position(), release_z), upright, CLOSE, tol=0.015, rot_tol=0.1, max_steps=40)
+            yield from ctx.goto(
+                _above(view.eef_position(), release_z), upright, CLOSE, tol=0.015, rot_tol=0.1, max_steps=40
+            )
         ctx.events.extend(["misplace", "drop"] if misplaced and _over(view, obj, goal_xy) else ["drop"])
         yield from ctx.hold(OPEN, 10)
         yield from ctx.hold(OPEN, 10)
@@ -353,8 +400,12 @@ def place(ctx: SkillContext, obj: str, target: str | np.ndarray, shared: bool = 
             break
         high = view.eef_position()[2] - slow_below
         down = -(high + 0.02) if high > 0 else -0.02
-        yield ctx.servo.action(np.array([*xy_error, down if aligned else 0.0]), rotation_error(upright, view.eef_rotation()), CLOSE,
-                               speed=1.0 if high > 0 else 0.35)
+        yield ctx.servo.action(
+            np.array([*xy_error, down if aligned else 0.0]),
+            rotation_error(upright, view.eef_rotation()),
+            CLOSE,
+            speed=1.0 if high > 0 else 0.35,
+        )
     if misplaced and _over(view, obj, goal_xy):
         ctx.events.append("misplace")
     yield from ctx.release(upright)
@@ -390,7 +441,15 @@ def insert(ctx: SkillContext, obj: str, target: str, facing: np.ndarray, front: 
     yield from ctx.goto(_above(outside, carry), rot, CLOSE, tol=0.02, rot_tol=0.1, max_steps=120)
     yield from ctx.goto(outside, rot, CLOSE, tol=0.01, max_steps=60)
     yield from ctx.goto(inside, rot, CLOSE, tol=0.004, max_steps=80, speed=0.35)
-    yield from ctx.goto(inside - [0.0, 0.0, SILL_CLEARANCE + 0.01], rot, CLOSE, tol=0.006, max_steps=30, speed=0.35, until=lambda: _set_down(view, obj))
+    yield from ctx.goto(
+        inside - [0.0, 0.0, SILL_CLEARANCE + 0.01],
+        rot,
+        CLOSE,
+        tol=0.006,
+        max_steps=30,
+        speed=0.35,
+        until=lambda: _set_down(view, obj),
+    )
     yield from ctx.release(rot)
     yield from ctx.goto(view.eef_position() + np.array([*(facing[:2] * 0.06), 0.0]), rot, OPEN, tol=0.02, max_steps=30)
     return True
@@ -408,7 +467,9 @@ def knock(ctx: SkillContext, victim: str) -> Actions:
     end = np.array([*(centre[:2] + 0.06 * direction), z])
     rot = grasp_rotation(0.0)
     ctx.events.append(f"collide:{victim}")
-    yield from ctx.goto(_above(start, max(view.eef_position()[2], shape.top + 0.08)), rot, CLOSE, tol=0.02, max_steps=80)
+    yield from ctx.goto(
+        _above(start, max(view.eef_position()[2], shape.top + 0.08)), rot, CLOSE, tol=0.02, max_steps=80
+    )
     yield from ctx.goto(start, rot, CLOSE, tol=0.015, max_steps=60)
     yield from ctx.goto(end, rot, CLOSE, tol=0.02, max_steps=40)
     yield from ctx.goto(_above(end, shape.top + 0.10), rot, OPEN, tol=0.03, max_steps=40)
@@ -455,7 +516,9 @@ def push(ctx: SkillContext, obj: str, target: str, tolerance: float = 0.015, max
         if not pressing or eef[2] > shape.top + 0.01 or np.linalg.norm(eef[:2] - press) > RECONTACT:
             if eef[2] < hover - 0.01:
                 yield from ctx.goto(_above(eef, hover), view.eef_rotation(), CLOSE, tol=0.01, max_steps=20)
-            yield from ctx.goto(_above(press, max(view.eef_position()[2], hover)), rot, CLOSE, tol=0.015, rot_tol=0.15, max_steps=80)
+            yield from ctx.goto(
+                _above(press, max(view.eef_position()[2], hover)), rot, CLOSE, tol=0.015, rot_tol=0.15, max_steps=80
+            )
             yield from ctx.goto(_above(press, hover), rot, CLOSE, tol=0.01, max_steps=40)
             touching = lambda: any(c.involves(obj) and c.other(obj) == "gripper" for c in view.contacts())  # noqa: E731
             yield from ctx.goto(_above(press, press_z), rot, CLOSE, tol=0.006, max_steps=30, speed=0.5, until=touching)
@@ -485,7 +548,10 @@ def _fingertip_reach(rot: np.ndarray, direction: np.ndarray) -> float:
 def _lookahead(path: list[np.ndarray], point: np.ndarray, distance: float) -> np.ndarray:
     """The point `distance` further along the polyline `path` than the path's point nearest `point`."""
     legs = list(zip(path, path[1:]))
-    feet = [a + float(np.clip((point - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0)) * (b - a) for a, b in legs]
+    feet = [
+        a + float(np.clip((point - a) @ (b - a) / max(float((b - a) @ (b - a)), 1e-12), 0.0, 1.0)) * (b - a)
+        for a, b in legs
+    ]
     leg = int(np.argmin([np.linalg.norm(foot - point) for foot in feet]))
     left, here = distance, feet[leg]
     for _, b in legs[leg:]:

@@ -4,6 +4,7 @@ Every package raises :class:`UserInputError` for bad input a person can fix (unk
 file, wrong field); the CLI turns it into one clear line and a non-zero exit instead of a traceback.
 It lives at the bottom of the import chain so that every package can raise it.
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable

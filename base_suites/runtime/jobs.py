@@ -20,6 +20,7 @@ survive a fork), ignore Ctrl-C (the parent stops them), and are terminated when 
 first failing job in submission order, after the results of every job before it, as a serial run
 would give them.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,8 +47,12 @@ _worker: Callable[[Any], Any] | None = None
 
 def add_workers_argument(parser: argparse.ArgumentParser, default: int = 1) -> None:
     """The `--workers` option every command that runs episodes takes."""
-    parser.add_argument("--workers", type=int, default=default,
-                        help=f"processes running episodes side by side (default: {default}); results do not depend on it")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=default,
+        help=f"processes running episodes side by side (default: {default}); results do not depend on it",
+    )
 
 
 def available_cores() -> int:
@@ -68,8 +73,10 @@ def check_picklable(value: Any, what: str) -> None:
     try:
         pickle.dumps(value)
     except Exception as exc:  # pickling raises many types (PicklingError, TypeError, AttributeError)
-        raise UserInputError(f"{what} cannot be sent to worker processes ({type(exc).__name__}); "
-                             "pass a directory, or run with --workers 1") from None
+        raise UserInputError(
+            f"{what} cannot be sent to worker processes ({type(exc).__name__}); "
+            "pass a directory, or run with --workers 1"
+        ) from None
 
 
 @contextmanager
@@ -120,8 +127,9 @@ def _run_job(numbered: tuple[int, Any]) -> tuple[int, bool, Any]:
 
 
 @contextmanager
-def run_jobs(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job],
-             workers: int = 1) -> Iterator[Iterator[tuple[Job, Result]]]:
+def run_jobs(
+    make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job], workers: int = 1
+) -> Iterator[Iterator[tuple[Job, Result]]]:
     """Context giving an iterator of (job, result) pairs in the order the jobs finish (submission order
     with one worker). A job's exception is raised from the iterator; leaving the context (an error, a
     break, Ctrl-C, or the end) terminates the workers, so no further job runs.
@@ -139,8 +147,12 @@ def run_jobs(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[
         return
     check_picklable(make_worker, "the worker factory")
     with _spawned_with_one_thread():  # processes start at submit: all of them inside
-        pool = ProcessPoolExecutor(min(workers, len(jobs)), mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_start_worker, initargs=(make_worker,))
+        pool = ProcessPoolExecutor(
+            min(workers, len(jobs)),
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_start_worker,
+            initargs=(make_worker,),
+        )
         futures = {pool.submit(_run_job, (n, job)): n for n, job in enumerate(jobs)}
     try:
         yield _as_finished(futures, jobs)
@@ -195,7 +207,9 @@ def _serial(make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[J
                 close()
 
 
-def in_order(results: Iterable[tuple[Job, Result]], position: Callable[[Job], int], first: int = 0) -> Iterator[tuple[Job, Result]]:
+def in_order(
+    results: Iterable[tuple[Job, Result]], position: Callable[[Job], int], first: int = 0
+) -> Iterator[tuple[Job, Result]]:
     """Re-order (job, result) pairs by `position(job)`, consecutive from `first`: for writers whose file
     layout is positional (a demos file names its episodes demo_0, demo_1, ...). A result that arrives
     before an earlier one waits in memory until that one is written; if the run stops first, it is lost

@@ -1,5 +1,6 @@
 """PEP 562 lazy exports: a package names its public API without importing heavy modules (torch, the
 simulator) until a name is first used, which keeps `elegant --help` and light imports fast."""
+
 from __future__ import annotations
 
 import importlib

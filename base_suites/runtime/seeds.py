@@ -1,4 +1,5 @@
 """Seeds derived from integer keys, so every piece of randomness has its own reproducible stream."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -18,6 +18,7 @@ On the critic's own training rollouts these figures show memorisation (`q_auroc`
 starts it never saw (the evaluation's), they show what JITI can rely on, in seconds and without the
 simulator, where an `elegant eval` comparison costs minutes and is noisier.
 """
+
 from __future__ import annotations
 
 from collections import defaultdict
@@ -39,8 +40,12 @@ _SAME_ACTION_ATOL = 1e-5
 def _metadata(f: DemoFile, demo: Demo) -> dict[str, Any]:
     """What a policy's `reset` and a critic's `bind` read from env.metadata, from the file instead."""
     attrs = demo.attrs
-    return {"suite": attrs["suite"], "task_index": int(attrs["task_index"]), "instruction": attrs.get("language_instruction", ""),
-            "state_layout": f.state_layouts[demo.task_key]}
+    return {
+        "suite": attrs["suite"],
+        "task_index": int(attrs["task_index"]),
+        "instruction": attrs.get("language_instruction", ""),
+        "state_layout": f.state_layouts[demo.task_key],
+    }
 
 
 def single_explored_step(demo: Demo, chunk: int, where: str) -> int | None:
@@ -57,7 +62,8 @@ def _summary(rows: list[tuple[bool, float, float]], skipped: int) -> dict[str, A
     advantage = np.array([r[1] - r[2] for r in rows])
     q_explored = np.array([r[1] for r in rows])
     return {
-        "episodes": len(rows), "skipped": skipped,
+        "episodes": len(rows),
+        "skipped": skipped,
         "elegant_rate": float(elegant.mean()) if rows else None,
         "advantage_auroc": auroc(advantage[elegant], advantage[~elegant]),
         "q_auroc": auroc(q_explored[elegant], q_explored[~elegant]),
@@ -95,12 +101,13 @@ def branch_ranking(path: str, policy: Any, critic: Any, *, progress: bool = Fals
                 action = np.asarray(policy({"state": demo.obs[t]}), dtype=np.float64)
                 if not np.allclose(np.clip(action, -1.0, 1.0), demo.actions[t], atol=_SAME_ACTION_ATOL):
                     raise UserInputError(
-                        f"{where}: step {t}: the policy acts otherwise than recorded; rank with the policy that recorded "
+                        f"{where}: step {t}: the policy acts otherwise than recorded; rank with the policy that "
+                        "recorded "
                         f"the rollouts (attr policy: {demo.attrs.get('policy', 'not recorded')})"
                     )
             state = demo.obs[explored_at]
             plan = decide(policy, {"state": state}, chunk)
-            explored = demo.actions[explored_at:explored_at + chunk]
+            explored = demo.actions[explored_at : explored_at + chunk]
             q_plan, q_explored = critic.q(state, np.stack([plan.reshape(-1), explored.reshape(-1)]))
             rows[key].append((bool(demo.attrs["elegant"]), float(q_explored), float(q_plan)))
     tasks = sorted(set(rows) | set(skipped))

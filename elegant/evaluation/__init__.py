@@ -1,6 +1,7 @@
 """Running policies in the simulator: the evaluation runner (`evaluate`, with each episode's start fixed by
 `episode_start`), recorded rollouts for critic data (`collect_rollouts`), LIBERO's lifelong protocol
 (`run_lifelong`), the episode log and the metrics computed from it. Names resolve on first use."""
+
 from __future__ import annotations
 
 from base_suites.runtime.lazy import lazy_getattr

@@ -3,17 +3,18 @@
 Its own module because both the evaluation runner (which appends) and the reports (which pair the
 episodes of several runs) read it, and the runner imports the reports.
 """
+
 from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from annotations.format import task_key
-from base_suites.runtime.io import atomic_write
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import atomic_write
 
 
 class EpisodeLog:

@@ -32,6 +32,7 @@ Layout of OUT (k is the position in the learning order, e an evaluation epoch)::
 Resuming (`resume=True`) skips finished stages and finished evaluations and continues a killed training
 stage from its checkpoint, to the same numbers.
 """
+
 from __future__ import annotations
 
 import os
@@ -45,16 +46,16 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import get_task
-from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_workers
-from elegant.evaluation.runner import evaluate
 from elegant.evaluation.metrics import lifelong_metrics
+from elegant.evaluation.runner import evaluate
 from elegant.policies.bc_data import load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import DEFAULT_MODES
 from elegant.policies.bc_train import BCConfig, select_tasks, snapshot_dir, train_policy
-from elegant.reporting.report import percent, markdown_table, save_figure
+from elegant.reporting.report import markdown_table, percent, save_figure
 
 
 @dataclass
@@ -78,10 +79,21 @@ def train_stage_sequential(run: _Run, k: int) -> None:
     network over the features of all K tasks); snapshots at the evaluation epochs."""
     cfg = run.config
     start: dict[str, Any] = {"features": run.features} if k == 0 else {"init_from": run.kept[k - 1]}
-    train_policy(run.paths, run.stage_dir(k), epochs=cfg["epochs"], seed=cfg["seed"], modes=cfg["modes"], resume=True, progress=False,
-                 tasks=[cfg["task_keys"][k]], snapshot_epochs=cfg["eval_epochs"],
-                 on_epoch_end=lambda info: run.status(f"{cfg['task_keys'][k]}: epoch {info['epoch']}/{cfg['epochs']}, nll {info['nll']:.3f}"),
-                 **start)
+    train_policy(
+        run.paths,
+        run.stage_dir(k),
+        epochs=cfg["epochs"],
+        seed=cfg["seed"],
+        modes=cfg["modes"],
+        resume=True,
+        progress=False,
+        tasks=[cfg["task_keys"][k]],
+        snapshot_epochs=cfg["eval_epochs"],
+        on_epoch_end=lambda info: run.status(
+            f"{cfg['task_keys'][k]}: epoch {info['epoch']}/{cfg['epochs']}, nll {info['nll']:.3f}"
+        ),
+        **start,
+    )
 
 
 # How each algorithm trains stage k into `run.stage_dir(k)`; another lifelong algorithm slots in here.
@@ -115,8 +127,9 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
         changed = changed_fields(read_json_file(path, "lifelong config"), config, added={"modes": 5})
         if changed:
             key, before, now = changed[0]
-            raise UserInputError(f"{path}: field {key!r} is {before!r} but this run has {now!r}; "
-                                 "resume only with the same settings")
+            raise UserInputError(
+                f"{path}: field {key!r} is {before!r} but this run has {now!r}; resume only with the same settings"
+            )
     elif out.exists() and any(out.iterdir()):
         hint = "resume it (--resume)" if path.exists() else "it holds no lifelong run"
         raise UserInputError(f"{out}: not empty ({hint}); choose another directory")
@@ -130,8 +143,20 @@ def _evaluate(run: _Run, policy: str, tasks: list[int], run_dir: Path) -> dict[s
     summary = run_dir / "summary.json"
     if summary.exists():
         return read_json_file(summary, "evaluation summary")
-    return evaluate(cfg["suite"], tasks, policy, None, mode="base", episodes=cfg["episodes"], seed=cfg["seed"], out=run_dir,
-                    resume=True, progress=False, max_steps=cfg["max_steps"], workers=run.workers)
+    return evaluate(
+        cfg["suite"],
+        tasks,
+        policy,
+        None,
+        mode="base",
+        episodes=cfg["episodes"],
+        seed=cfg["seed"],
+        out=run_dir,
+        resume=True,
+        progress=False,
+        max_steps=cfg["max_steps"],
+        workers=run.workers,
+    )
 
 
 def _rates(summary: dict[str, Any], key: str) -> tuple[float, float]:
@@ -151,7 +176,9 @@ def _learn_and_measure(run: _Run, k: int, C: np.ndarray, S: np.ndarray) -> int:
         STAGE_TRAINERS[cfg["algorithm"]](run, k)
     for i, epoch in enumerate(cfg["eval_epochs"]):
         run.status(f"{keys[k]}: evaluating epoch {epoch}")
-        summary = _evaluate(run, snapshot_dir(stage, epoch), [indices[k]], run.out / "evals" / f"task_{k}" / f"epoch_{epoch}")
+        summary = _evaluate(
+            run, snapshot_dir(stage, epoch), [indices[k]], run.out / "evals" / f"task_{k}" / f"epoch_{epoch}"
+        )
         C[:, k, i] = _rates(summary, keys[k])
     best = int(np.argmax(C[0, k]))  # the first best, as LIBERO replaces its checkpoint only on a strict gain
     run.kept.append(snapshot_dir(stage, cfg["eval_epochs"][best]))
@@ -190,11 +217,19 @@ def run_lifelong(
     evaluation's episodes (`elegant.evaluate`). Writes OUT as the
     module docstring describes and returns the content of OUT/lifelong.json.
     """
-    _positive(epochs=epochs, eval_every=eval_every, episodes=episodes, modes=modes, **({} if max_steps is None else {"max_steps": max_steps}))
+    _positive(
+        epochs=epochs,
+        eval_every=eval_every,
+        episodes=episodes,
+        modes=modes,
+        **({} if max_steps is None else {"max_steps": max_steps}),
+    )
     workers = check_workers(workers)
     if epochs % eval_every:
-        raise UserInputError(f"lifelong: epochs ({epochs}) must be a multiple of eval_every ({eval_every}), "
-                             "so that the last epoch is evaluated like LIBERO's 50 epochs every 5")
+        raise UserInputError(
+            f"lifelong: epochs ({epochs}) must be a multiple of eval_every ({eval_every}), "
+            "so that the last epoch is evaluated like LIBERO's 50 epochs every 5"
+        )
     indices = _task_indices(suite, tasks)
     keys = [task_key(suite, i) for i in indices]
     if isinstance(demo_paths, (str, os.PathLike)) or not demo_paths:
@@ -204,10 +239,19 @@ def run_lifelong(
     defaults = BCConfig(epochs=epochs, seed=seed, modes=modes)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
     config = {
-        "protocol": "LIBERO lifelong (Liu et al. 2023)", "algorithm": "sequential", "suite": suite, "tasks": indices,
-        "task_keys": keys, "data": data.files, "epochs": int(epochs), "eval_every": int(eval_every),
-        "eval_epochs": list(range(0, int(epochs) + 1, int(eval_every))), "episodes": int(episodes), "seed": int(seed),
-        "max_steps": max_steps, "modes": int(modes),
+        "protocol": "LIBERO lifelong (Liu et al. 2023)",
+        "algorithm": "sequential",
+        "suite": suite,
+        "tasks": indices,
+        "task_keys": keys,
+        "data": data.files,
+        "epochs": int(epochs),
+        "eval_every": int(eval_every),
+        "eval_epochs": list(range(0, int(epochs) + 1, int(eval_every))),
+        "episodes": int(episodes),
+        "seed": int(seed),
+        "max_steps": max_steps,
+        "modes": int(modes),
     }
     out = Path(out)
     _prepare(out, config, resume)
@@ -224,7 +268,10 @@ def run_lifelong(
         "config": config,
         "kept_epochs": kept_epochs,
         "kept_policies": run.kept,
-        "S": _matrix(S[0]), "C": C[0].tolist(), "S_elegant": _matrix(S[1]), "C_elegant": C[1].tolist(),
+        "S": _matrix(S[0]),
+        "C": C[0].tolist(),
+        "S_elegant": _matrix(S[1]),
+        "C_elegant": C[1].tolist(),
         "metrics": lifelong_metrics(S[0], C[0]),
         # Checkpoints are kept by success, so the elegant curves are clamped where those were kept.
         "metrics_elegant": lifelong_metrics(S[1], C[1], kept=[int(np.argmax(row)) for row in C[0]]),
@@ -241,6 +288,7 @@ def _matrix(S: np.ndarray) -> list[list[float | None]]:
 
 # ---- report ----------------------------------------------------------------------------------------
 
+
 def _plot_matrices(S: np.ndarray, labels: list[str], path: Path) -> Path:
     """Heatmaps of S from success and from ESR; row i: after learning task i, column j: evaluated task."""
     from matplotlib.figure import Figure
@@ -251,7 +299,15 @@ def _plot_matrices(S: np.ndarray, labels: list[str], path: Path) -> Path:
     for ax, matrix, title in zip(axes, S, ("success S", "elegant success S_elegant")):
         image = ax.imshow(np.ma.masked_invalid(matrix), vmin=0.0, vmax=1.0, cmap="viridis")
         for i, j in zip(*np.nonzero(~np.isnan(matrix))):
-            ax.text(j, i, f"{matrix[i, j]:.2f}", ha="center", va="center", fontsize=8, color="w" if matrix[i, j] < 0.6 else "k")
+            ax.text(
+                j,
+                i,
+                f"{matrix[i, j]:.2f}",
+                ha="center",
+                va="center",
+                fontsize=8,
+                color="w" if matrix[i, j] < 0.6 else "k",
+            )
         ax.set_xticks(range(K), labels, rotation=30, ha="right", fontsize=7)
         ax.set_xlabel("evaluated task j")
         ax.set_title(title, fontsize=10)
@@ -266,9 +322,11 @@ def _plot_curves(C: np.ndarray, epochs: list[int], kept: list[int], labels: list
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(10, 3.6), layout="constrained")
-    for ax, curves, title in zip(fig.subplots(1, 2), C, ("success C (star: kept checkpoint)", "elegant success C_elegant")):
+    for ax, curves, title in zip(
+        fig.subplots(1, 2), C, ("success C (star: kept checkpoint)", "elegant success C_elegant")
+    ):
         for k, label in enumerate(labels):
-            line, = ax.plot(epochs, curves[k], marker="o", ms=3, lw=1.2, label=label)
+            (line,) = ax.plot(epochs, curves[k], marker="o", ms=3, lw=1.2, label=label)
             ax.plot([kept[k]], [curves[k][epochs.index(kept[k])]], marker="*", ms=10, color=line.get_color())
         ax.set_ylim(-0.05, 1.05)
         ax.set_xlabel("epoch of training on the task")
@@ -288,16 +346,20 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
     def pair(s: float, e: float) -> str:
         return "—" if np.isnan(s) else f"{percent(s)} / {percent(e)}"
 
-    metrics = [[name, *(f"{result[m][key]:.3f}" for key in ("fwt", "nbt", "auc"))]
-               for name, m in (("success", "metrics"), ("elegant success (ESR)", "metrics_elegant"))]
+    metrics = [
+        [name, *(f"{result[m][key]:.3f}" for key in ("fwt", "nbt", "auc"))]
+        for name, m in (("success", "metrics"), ("elegant success (ESR)", "metrics_elegant"))
+    ]
     lines = [
         f"# Lifelong learning: {cfg['suite']}, {cfg['algorithm']} fine-tuning",
         "",
         f"- tasks in learning order: {', '.join(labels)}",
         f"- {cfg['epochs']} epochs per task, evaluated at epochs {', '.join(map(str, cfg['eval_epochs']))}; "
-        f"{cfg['episodes']} episodes per evaluation; seed {cfg['seed']}; max steps {cfg['max_steps'] or 'suite default'}",
+        f"{cfg['episodes']} episodes per evaluation; seed {cfg['seed']}; max steps "
+        f"{cfg['max_steps'] or 'suite default'}",
         f"- demos: {', '.join(f['path'] for f in cfg['data'])}; each task's normalisation is fitted on its own demos",
-        f"- kept checkpoint per task (first best success, as LIBERO): epoch {', '.join(map(str, result['kept_epochs']))}",
+        "- kept checkpoint per task (first best success, as LIBERO): epoch "
+        f"{', '.join(map(str, result['kept_epochs']))}",
         "",
         "## Metrics",
         "",
@@ -308,14 +370,19 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
         "",
         "## Success matrix S: success / ESR on task j (column) after learning task i (row)",
         "",
-        markdown_table(["after \\ on", *labels], [[labels[i], *(pair(S[0, i, j], S[1, i, j]) for j in range(len(labels)))] for i in range(len(labels))]),
+        markdown_table(
+            ["after \\ on", *labels],
+            [[labels[i], *(pair(S[0, i, j], S[1, i, j]) for j in range(len(labels)))] for i in range(len(labels))],
+        ),
         "",
         "![success matrix](success_matrix.png)",
         "",
         "## Learning curves C: success / ESR on the task being learned, per evaluation epoch",
         "",
-        markdown_table(["task", *(f"epoch {e}" for e in cfg["eval_epochs"])],
-               [[labels[k], *(pair(C[0, k, i], C[1, k, i]) for i in range(C.shape[2]))] for k in range(len(labels))]),
+        markdown_table(
+            ["task", *(f"epoch {e}" for e in cfg["eval_epochs"])],
+            [[labels[k], *(pair(C[0, k, i], C[1, k, i]) for i in range(C.shape[2]))] for k in range(len(labels))],
+        ),
         "",
         "![learning curves](learning_curves.png)",
     ]

@@ -1,4 +1,4 @@
-"""Metrics of DESIGN.md section 6: episode metrics, LIBERO's lifelong metrics, LIBERO-PRO robustness.
+"""Metrics of docs/design.md, section 8: episode metrics, LIBERO's lifelong metrics, LIBERO-PRO robustness.
 
 Episode metrics read the records of `RUN/episodes.jsonl` (one dict per finished episode; keys used
 here: task, success, elegant, violated, interventions, overrides, steps, decision_time, env_step_time).
@@ -6,6 +6,7 @@ The lifelong and robustness metrics take plain numbers so they serve success and
 call them once with success rates and once with elegant success rates ("elegant FWT/NBT/AUC", which no
 existing benchmark reports).
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
@@ -68,6 +69,7 @@ def paired_comparison(before: Sequence[Record], after: Sequence[Record], key: st
     only_after (pairs where only that run has `key`) and p_value: McNemar's exact test, the two-sided
     binomial test of only_after against only_before (1.0 where they are all equal). Pairing removes the
     start-to-start variance that dominates the difference of two independent 25-episode rates."""
+
     def start(r: Record) -> tuple:
         return r["task"], int(r["episode"]), r.get("init_index"), r.get("seed")
 
@@ -103,7 +105,11 @@ def decision_overhead(records: Sequence[Record]) -> dict[str, float]:
     total = max(float(steps.sum()), 1.0)
     decision = float(np.dot(steps, [r["decision_time"] for r in records]) / total)
     env = float(np.dot(steps, [r["env_step_time"] for r in records]) / total)
-    return {"decision_time": decision, "env_step_time": env, "decision_overhead": decision / env if env > 0 else float("nan")}
+    return {
+        "decision_time": decision,
+        "env_step_time": env,
+        "decision_overhead": decision / env if env > 0 else float("nan"),
+    }
 
 
 def _block(records: Sequence[Record]) -> dict[str, Any]:
@@ -132,6 +138,7 @@ def summarize(records: Sequence[Record]) -> dict[str, Any]:
 
 
 # ---- lifelong learning (LIBERO, Liu et al. 2023) --------------------------------------------------
+
 
 def clamp_learning_curves(curves: np.ndarray, kept: Sequence[int] | None = None) -> np.ndarray:
     """LIBERO keeps the best checkpoint: from the kept point of each row on (default: the row's first
@@ -181,6 +188,7 @@ def lifelong_metrics(S: np.ndarray, C: np.ndarray, kept: Sequence[int] | None = 
 
 
 # ---- robustness (LIBERO-PRO, Zhou et al. 2025) ----------------------------------------------------
+
 
 def robustness_metrics(rates: Mapping[str, float], original: str = "ori") -> dict[str, Any]:
     """Acc(ori), Acc(k) per perturbation axis, gap_k = Acc(ori) - Acc(k), PRO = mean over axes of Acc(k).

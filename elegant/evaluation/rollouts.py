@@ -19,6 +19,7 @@ LIBERO draws on every reset and the state does not show (a stove stands up to 2 
 reset seed per episode, one start's branches would differ in that hidden layout as well as in the
 explored decision, and a critic could not tell which of the two changed the outcome.
 """
+
 from __future__ import annotations
 
 import sys
@@ -42,9 +43,22 @@ from elegant.policies.protocol import DEFAULT_POLICY_ACT
 class _PolicySource:
     """`collect_episodes`' actor: the policy wrapped in JITI (mode "base", or "random" to explore)."""
 
-    def __init__(self, agent: JITI, suite: str, seed: int, init_states: Sequence[int] | None, policy_name: str,
-                 explore_at: Sequence[int] | None) -> None:
-        self.agent, self.suite, self.seed, self.init_states, self.policy_name = agent, suite, seed, init_states, policy_name
+    def __init__(
+        self,
+        agent: JITI,
+        suite: str,
+        seed: int,
+        init_states: Sequence[int] | None,
+        policy_name: str,
+        explore_at: Sequence[int] | None,
+    ) -> None:
+        self.agent, self.suite, self.seed, self.init_states, self.policy_name = (
+            agent,
+            suite,
+            seed,
+            init_states,
+            policy_name,
+        )
         self.explore_at = explore_at
 
     def for_task(self, env: LiberoEnv, spec: Any) -> None:
@@ -64,8 +78,8 @@ class _PolicySource:
         if self.explore_at is None:
             self.agent.reset(env.metadata, seed=reset_seed)
         else:  # branches share the reset seed, not the draw of their explored candidate
-            self.agent.reset(env.metadata, seed=derive_seed(reset_seed, episode))
-            self.agent.random_steps = frozenset({branch_step(self.explore_at, episode, self.n_starts)})
+            branch = branch_step(self.explore_at, episode, self.n_starts)
+            self.agent.reset(env.metadata, seed=derive_seed(reset_seed, episode), random_steps={branch})
 
     def __call__(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         return self.agent(obs)
@@ -75,8 +89,16 @@ class _PolicySource:
         return {"policy": self.policy_name, "rollout": self.agent.config(), "explored_steps": explored}
 
 
-def _policy_source(policy: Any, agent_settings: Mapping[str, Any], suite: str, seed: int, init_states: Sequence[int] | None,
-                   policy_name: str, explore_at: Sequence[int] | None, policy_act: str) -> _PolicySource:
+def _policy_source(
+    policy: Any,
+    agent_settings: Mapping[str, Any],
+    suite: str,
+    seed: int,
+    init_states: Sequence[int] | None,
+    policy_name: str,
+    explore_at: Sequence[int] | None,
+    policy_act: str,
+) -> _PolicySource:
     """The rollouts' actor, built from picklable inputs (a worker process builds its own)."""
     agent = JITI(open_policy(policy, policy_act), None, seed=seed, **agent_settings)
     return _PolicySource(agent, suite, seed, init_states, policy_name, explore_at)
@@ -96,9 +118,8 @@ def branch_step(explore_at: Sequence[int], episode: int, n_starts: int) -> int:
 
 def branch_points_reached(explore_at: Sequence[int], episodes: int, n_starts: int) -> list[int]:
     """The points of `explore_at` that some of `episodes` branch at. Starts cycle first, so with fewer than
-    n_starts * len(explore_at) episodes the later points are never reached: the recipe's 100 rollouts from
-    25 starts branched at 4 of its 16 points for six sessions, and critics that also saw branches later in
-    the episode gained 13 points of ESR on libero_object instead of 7 (benchmarks/RESULTS.md, session 32)."""
+    n_starts * len(explore_at) episodes the later points are never reached, and critics that never saw
+    branches late in the episode rank the decisions there worse (docs/lab/jiti-sessions-30-38.md)."""
     return sorted({branch_step(explore_at, e, n_starts) for e in range(episodes)})
 
 
@@ -108,8 +129,11 @@ def _warn_unreached_points(explore_at: Sequence[int], episodes: int, starts_per_
     reached = min((branch_points_reached(explore_at, episodes, n) for n in starts_per_task), key=len)
     if len(reached) < len(set(explore_at)):
         needed = max(starts_per_task) * len(explore_at)
-        print(f"rollouts: warning: {episodes} episodes per task branch only at steps {reached} of --explore-at "
-              f"{list(explore_at)}; {needed} would branch every start at every point", file=sys.stderr)
+        print(
+            f"rollouts: warning: {episodes} episodes per task branch only at steps {reached} of --explore-at "
+            f"{list(explore_at)}; {needed} would branch every start at every point",
+            file=sys.stderr,
+        )
 
 
 def collect_rollouts(
@@ -132,7 +156,8 @@ def collect_rollouts(
     workers: int = 1,
     policy_act: str = DEFAULT_POLICY_ACT,
 ) -> dict[str, Any]:
-    """Roll `policy` (a directory or a callable, acting as `policy_act` says: see `elegant.evaluate`) out `episodes` times per task of `suite` (None: every task of it)
+    """Roll `policy` (a directory or a callable, acting as `policy_act` says: see `elegant.evaluate`) out `episodes`
+    times per task of `suite` (None: every task of it)
     and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
     the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
     policy as it is; more episodes than `init_states` then repeat episodes exactly). `perturbation`: as in
@@ -152,13 +177,31 @@ def collect_rollouts(
             raise UserInputError(f"rollouts: --explore-at needs decision steps >= 0, got {list(explore_at)}")
         explore_at = [int(t) for t in explore_at]
         _warn_unreached_points(explore_at, episodes, [_n_starts(spec, init_states) for spec in specs])
-    agent_settings = {"mode": "random" if explore > 0 or explore_at is not None else "base", "random_rate": explore,
-                      "trust_radius": trust_radius, "n_candidates": n_candidates}
+    agent_settings = {
+        "mode": "random" if explore > 0 or explore_at is not None else "base",
+        "random_rate": explore,
+        "trust_radius": trust_radius,
+        "n_candidates": n_candidates,
+    }
     name = policy if isinstance(policy, str) else type(policy).__name__
-    make_source = partial(_policy_source, policy, agent_settings, suite, seed, None if init_states is None else list(init_states), name,
-                          explore_at, policy_act)
+    make_source = partial(
+        _policy_source,
+        policy,
+        agent_settings,
+        suite,
+        seed,
+        None if init_states is None else list(init_states),
+        name,
+        explore_at,
+        policy_act,
+    )
     source = make_source()  # here for the settings it records, and to refuse a bad policy before any env is built
-    settings = {"policy": name, "rollout": source.agent.config(), "init_states": source.init_states, "max_steps": max_steps}
+    settings = {
+        "policy": name,
+        "rollout": source.agent.config(),
+        "init_states": source.init_states,
+        "max_steps": max_steps,
+    }
     if explore_at is not None:  # only then: files collected before it existed still resume
         settings["explore_at"] = explore_at
         settings["branches_share_reset_seed"] = True
@@ -166,9 +209,21 @@ def collect_rollouts(
         settings["perturbation"] = perturbation
     if policy_act != DEFAULT_POLICY_ACT:  # likewise
         settings["policy_act"] = policy_act
-    path = collect_episodes(suite, tasks, episodes, out, (lambda: source) if workers == 1 else make_source, seed=seed, resume=resume,
-                            progress=progress, desc="rollouts", horizon=lambda spec: max_steps or spec.default_max_steps,
-                            settings=settings, perturbation=perturbation, workers=workers)
+    path = collect_episodes(
+        suite,
+        tasks,
+        episodes,
+        out,
+        (lambda: source) if workers == 1 else make_source,
+        seed=seed,
+        resume=resume,
+        progress=progress,
+        desc="rollouts",
+        horizon=lambda spec: max_steps or spec.default_max_steps,
+        settings=settings,
+        perturbation=perturbation,
+        workers=workers,
+    )
     with DemoFile(path) as f:
         demos = list(f)
     return {

@@ -13,6 +13,7 @@ seed, the task and i only, never of the mode: runs of the modes base / always / 
 compare on identical starts. Resuming skips the finished episodes and refuses a directory whose
 config.json describes a different run (only the number of episodes may grow).
 """
+
 from __future__ import annotations
 
 import json
@@ -34,17 +35,16 @@ from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.episode_log import EpisodeLog, run_records
-from elegant.intervention.jiti import JITI
 from elegant.evaluation.metrics import summarize
+from elegant.intervention.config import JITIConfig
+from elegant.intervention.jiti import JITI
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
 from elegant.reporting.report import write_run_report
 
-JITI_SETTINGS = ("window", "threshold", "threshold_mode", "n_candidates", "noise_scale", "trust_radius", "random_rate", "min_gain", "trigger",
-                 "max_overrides", "warmup")
 
-
-def episode_start(seed: int, suite: str, task_index: int, episode: int, n_init_states: int,
-                  init_states: Sequence[int] | None = None) -> tuple[int, int]:
+def episode_start(
+    seed: int, suite: str, task_index: int, episode: int, n_init_states: int, init_states: Sequence[int] | None = None
+) -> tuple[int, int]:
     """(init-state index, env reset seed) of episode `episode` of a task.
 
     The init states (all `n_init_states`, or only `init_states`, e.g. those a critic's rollouts did not
@@ -88,9 +88,13 @@ def open_policy(policy: Any, act: str = DEFAULT_POLICY_ACT) -> Any:
 
         return load_policy(policy, act=act)
     if act != DEFAULT_POLICY_ACT:
-        raise UserInputError(f"policy act {act!r} applies to a BC policy directory; a {type(policy).__name__} decides its own actions")
+        raise UserInputError(
+            f"policy act {act!r} applies to a BC policy directory; a {type(policy).__name__} decides its own actions"
+        )
     if not callable(policy):
-        raise UserInputError(f"policy: expected a policy directory or a callable obs -> action, got {type(policy).__name__}")
+        raise UserInputError(
+            f"policy: expected a policy directory or a callable obs -> action, got {type(policy).__name__}"
+        )
     return policy
 
 
@@ -105,10 +109,14 @@ def open_critic(critic: Any) -> Any:
     return critic
 
 
-def build_agent(policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any], policy_act: str = DEFAULT_POLICY_ACT) -> JITI:
+def build_agent(
+    policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any], policy_act: str = DEFAULT_POLICY_ACT
+) -> JITI:
     """The evaluated agent: `policy` (acting as `policy_act` says) and `critic` opened (directories or
     objects) and wrapped in JITI."""
-    return JITI(open_policy(policy, policy_act), open_critic(critic), mode=mode, seed=seed, **settings)
+    return JITI(
+        open_policy(policy, policy_act), open_critic(critic), JITIConfig.from_settings(settings, mode=mode), seed=seed
+    )
 
 
 def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
@@ -117,12 +125,24 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
         raise UserInputError(f"{out} holds episodes.jsonl without config.json; choose another directory")
     if path.exists():
         if not resume:
-            raise UserInputError(f"{out} already holds a run (config.json); resume it (--resume) or choose another directory")
+            raise UserInputError(
+                f"{out} already holds a run (config.json); resume it (--resume) or choose another directory"
+            )
         # runs from before chunking (one action per decision), before mode "random" (so its rate had no
         # effect), before a subset of init states could be chosen, before the minimum gain (0: none) and
         # before the one-sided trigger, the override budget and the steered warm-up
-        added = {"init_states": None, "policy_act": DEFAULT_POLICY_ACT, "jiti": {"chunk": 1, "random_rate": config["jiti"]["random_rate"], "min_gain": 0.0, "trigger": "deviation",
-                                               "max_overrides": None, "warmup": "base"}}
+        added = {
+            "init_states": None,
+            "policy_act": DEFAULT_POLICY_ACT,
+            "jiti": {
+                "chunk": 1,
+                "random_rate": config["jiti"]["random_rate"],
+                "min_gain": 0.0,
+                "trigger": "deviation",
+                "max_overrides": None,
+                "warmup": "base",
+            },
+        }
         changed = changed_fields(read_json_file(path, "run config"), config, ignore=("episodes",), added=added)
         if changed:
             key, before, now = changed[0]
@@ -156,7 +176,9 @@ def _run_episode(env, agent: JITI, monitor, init_index: int, reset_seed: int) ->
         "interventions": agent.interventions,
         "overrides": agent.overrides,
         "steps": steps,
-        "decision_time": float(sum(d.time for d in agent.log) / steps),  # per step: a chunked policy decides every few steps
+        "decision_time": float(
+            sum(d.time for d in agent.log) / steps
+        ),  # per step: a chunked policy decides every few steps
         "env_step_time": env_time / steps,
         "perturbation": info.get("perturbation", []),
     }
@@ -200,9 +222,7 @@ def evaluate(
     if int(episodes) < 1:
         raise UserInputError(f"episodes must be >= 1, got {episodes}")
     settings = dict(jiti_kwargs or {})
-    unknown = sorted(set(settings) - set(JITI_SETTINGS))
-    if unknown:
-        raise UserInputError(f"jiti settings {unknown} unknown; expected some of: {', '.join(JITI_SETTINGS)}")
+    JITIConfig.from_settings(settings, mode=mode)  # refuses unknown or bad settings before anything is made
     if critic is not None and obs == "rgb":
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
     specs = task_specs(suite, tasks)
@@ -216,8 +236,12 @@ def evaluate(
         check_picklable((policy, critic), "the policy or the critic")
     agent = build_agent(policy, critic, mode, seed, settings, policy_act)
     chosen = None if init_states is None else sorted({int(i) for i in init_states})
-    described = {"policy": _describe(policy), "policy_act": policy_act, "critic": _describe(critic),
-                 "jiti": {k: v for k, v in agent.config().items() if k != "mode"}}
+    described = {
+        "policy": _describe(policy),
+        "policy_act": policy_act,
+        "critic": _describe(critic),
+        "jiti": {k: v for k, v in agent.config().items() if k != "mode"},
+    }
     task_modes = None
     if gate is not None:
         from elegant.intervention.gate import read_gate
@@ -241,19 +265,34 @@ def evaluate(
     _prepare_run_dir(out, config, resume)
     log = EpisodeLog(out / "episodes.jsonl")
     done = log.done()
-    jobs = [EvalJob(index, e, mode if task_modes is None else task_modes[task_key(suite, index)])
-            for index in indices for e in range(int(episodes)) if (task_key(suite, index), e) not in done]
+    jobs = [
+        EvalJob(index, e, mode if task_modes is None else task_modes[task_key(suite, index)])
+        for index in indices
+        for e in range(int(episodes))
+        if (task_key(suite, index), e) not in done
+    ]
     # the agent built here serves a serial run; worker processes each build their own from the same inputs
-    make_worker = partial(EpisodeRunner, agent if workers == 1 else partial(build_agent, policy, critic, mode, seed, settings, policy_act),
-                          config, str(out))
-    with tqdm(total=len(indices) * int(episodes), initial=len(indices) * int(episodes) - len(jobs),
-              desc=f"eval {mode}", unit="ep", disable=not progress) as bar:
+    make_worker = partial(
+        EpisodeRunner,
+        agent if workers == 1 else partial(build_agent, policy, critic, mode, seed, settings, policy_act),
+        config,
+        str(out),
+    )
+    with tqdm(
+        total=len(indices) * int(episodes),
+        initial=len(indices) * int(episodes) - len(jobs),
+        desc=f"eval {mode}",
+        unit="ep",
+        disable=not progress,
+    ) as bar:
         with run_jobs(make_worker, jobs, workers) as results:
             for _, record in results:
                 log.append(record)
                 bar.update(1)
-                bar.set_postfix(success=f"{np.mean([r['success'] for r in log.records]):.2f}",
-                                esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}")
+                bar.set_postfix(
+                    success=f"{np.mean([r['success'] for r in log.records]):.2f}",
+                    esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}",
+                )
     records = run_records(log.records, config)
     summary = {"config": config, **summarize(records)}
     atomic_write(out / "summary.json", json.dumps(summary, indent=2))
@@ -278,7 +317,8 @@ class EpisodeRunner:
     is the JITI-wrapped policy, or a factory that builds it (in a worker process, from directories)."""
 
     def __init__(self, agent: JITI | Callable[[], JITI], config: Mapping[str, Any], out: str) -> None:
-        self.agent = agent if isinstance(agent, JITI) else agent()
+        agent = agent if isinstance(agent, JITI) else agent()
+        self._agents = {agent.mode: agent}  # one agent per mode a gate runs tasks in, none changed during the run
         self.config, self.out = config, Path(out)
         self._task: int | None = None
         self._env = self._monitor = None
@@ -289,17 +329,31 @@ class EpisodeRunner:
         config, suite = self.config, self.config["suite"]
         if job.task_index != self._task:
             self.close()
-            self._env = make_env(suite, job.task_index, seed=config["seed"], obs=config["obs"], max_steps=config["max_steps"],
-                                 perturbation=config["perturbation"])
+            self._env = make_env(
+                suite,
+                job.task_index,
+                seed=config["seed"],
+                obs=config["obs"],
+                max_steps=config["max_steps"],
+                perturbation=config["perturbation"],
+            )
             self._monitor, self._task = ITCMonitor(self._env), job.task_index
-        env, agent = self._env, self.agent
-        agent.mode = job.mode
-        init_index, reset_seed = episode_start(config["seed"], suite, job.task_index, job.episode, env.task.n_init_states,
-                                               config["init_states"])
+        env, agent = self._env, self._agent(job.mode)
+        init_index, reset_seed = episode_start(
+            config["seed"], suite, job.task_index, job.episode, env.task.n_init_states, config["init_states"]
+        )
         numbers, verdict = _run_episode(env, agent, self._monitor, init_index, reset_seed)
-        record = {"task": task_key(suite, job.task_index), "suite": suite, "task_index": job.task_index, "episode": job.episode,
-                  "init_index": init_index, "seed": reset_seed, "mode": config["mode"], **numbers,
-                  "trace": f"traces/{trace_name(suite, job.task_index, job.episode)}"}
+        record = {
+            "task": task_key(suite, job.task_index),
+            "suite": suite,
+            "task_index": job.task_index,
+            "episode": job.episode,
+            "init_index": init_index,
+            "seed": reset_seed,
+            "mode": config["mode"],
+            **numbers,
+            "trace": f"traces/{trace_name(suite, job.task_index, job.episode)}",
+        }
         trace = {
             **{k: record[k] for k in ("task", "episode", "init_index", "mode", "success", "elegant", "violated")},
             "jiti": config["jiti"],
@@ -309,6 +363,12 @@ class EpisodeRunner:
         }
         atomic_write(self.out / record["trace"], json.dumps(trace))
         return record
+
+    def _agent(self, mode: str) -> JITI:
+        """The agent of `mode`: the run's own, or the same policy and critic under a gate's other mode."""
+        if mode not in self._agents:
+            self._agents[mode] = next(iter(self._agents.values())).with_mode(mode)
+        return self._agents[mode]
 
     def close(self) -> None:
         if self._env is not None:

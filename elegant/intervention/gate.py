@@ -17,20 +17,10 @@ half its held-out episodes, and `always` (re-ranking every decision) made many o
 JITI's trigger made few (ESR: base 44%, JITI 56%, `always` 76%). Given an `always` run on the same
 validation starts, the gate may choose `always` for such a task, within a budget on the suite's
 interventions (by default 40% of `always`'s on every task, issue 7's bound on JITI), so the suite
-stays a sparse intervener while the tasks that need constant steering get it. Session 33: from
-validation runs of all three on starts 0-24 it chose `always` on object/5 and 8, base on 2 and 9,
-JITI elsewhere, and the held-out ESR gain rose from +13.0 (JITI everywhere) to +15.2.
-
-Measured (benchmarks/RESULTS.md, sessions 25 and 28): with the drop trigger alone, 50 validation
-episodes per task from the critic's rollout starts did not predict the held-out effect on libero_goal
-or libero_object (they would have switched JITI off on libero_goal/4, +14 ESR held out). With the
-steered warm-up the per-task effects are larger: on libero_object 25 validation episodes per task
-switched off the tasks the base policy already does perfectly, and the held-out ESR gain rose from
-+8.8 to +11.6 (spoiled episodes 27 -> 10); on libero_goal it fell from +4.8 to +3.8.
-Validating instead on nudged starts (`--perturbation init@nudge`: starts 0-24 with the task objects
-moved up to 2 cm, which no critic saw; session 30) gave gates no better: +11.0 on libero_object, +3.4
-on libero_goal.
+stays a sparse intervener while the tasks that need constant steering get it. How well validation
+predicts the held-out effect, measured: benchmarks/RESULTS.md (the JITI recipe) and docs/lab/.
 """
+
 from __future__ import annotations
 
 import json
@@ -57,19 +47,24 @@ def _run(path: str | os.PathLike, mode: str) -> tuple[dict[str, Any], dict[tuple
     run = Path(path)
     config = read_json_file(run / "config.json", "run config")
     if config.get("mode") != mode:
-        raise UserInputError(f"{run / 'config.json'}: field 'mode' is {config.get('mode')!r}; the gate needs a {mode!r} run here")
+        raise UserInputError(
+            f"{run / 'config.json'}: field 'mode' is {config.get('mode')!r}; the gate needs a {mode!r} run here"
+        )
     records = EpisodeLog(run / "episodes.jsonl").records
     return config, {(r["task"], int(r["episode"])): r for r in records}
 
 
-def _paired_effects(base: dict[tuple[str, int], dict[str, Any]], runs: dict[str, dict[tuple[str, int], dict[str, Any]]]
-                    ) -> dict[str, dict[str, Any]]:
+def _paired_effects(
+    base: dict[tuple[str, int], dict[str, Any]], runs: dict[str, dict[tuple[str, int], dict[str, Any]]]
+) -> dict[str, dict[str, Any]]:
     """Per task, each mode's episodes made elegant and spoiled against base and its interventions per
     episode, over the episodes every run finished."""
     keys = set(base).intersection(*runs.values())
     tasks: dict[str, dict[str, Any]] = {}
     for key in sorted(keys):
-        row = tasks.setdefault(key[0], {"episodes": 0, **{m: {"gained": 0, "lost": 0, "interventions": 0.0} for m in runs}})
+        row = tasks.setdefault(
+            key[0], {"episodes": 0, **{m: {"gained": 0, "lost": 0, "interventions": 0.0} for m in runs}}
+        )
         row["episodes"] += 1
         for mode, episodes in runs.items():
             effect, b, r = row[mode], base[key], episodes[key]
@@ -95,14 +90,18 @@ def _flat(agent: dict[str, Any]) -> dict[str, Any]:
     return {**flat, **({f"jiti.{k}": v for k, v in sorted(jiti.items())} if isinstance(jiti, dict) else {"jiti": jiti})}
 
 
-def _refuse_other_agent(path: str | os.PathLike, expected: dict[str, Any], got: dict[str, Any], whose: str, prefix: str = "") -> None:
+def _refuse_other_agent(
+    path: str | os.PathLike, expected: dict[str, Any], got: dict[str, Any], whose: str, prefix: str = ""
+) -> None:
     """Refuse `got`'s policy, critic and JITI settings (read as `_flat` does; at `prefix` in the file at
     `path`) unless they equal `expected`'s, naming the first field that differs."""
     want, have = _flat(expected), _flat(got)
     for field in dict.fromkeys([*want, *have]):
         if want.get(field) != have.get(field):
-            raise UserInputError(f"{path}: field '{prefix}{field}' is {have.get(field)!r} but {whose} is {want.get(field)!r}; "
-                                 "a gate holds only for the policy, critic and JITI settings it validated")
+            raise UserInputError(
+                f"{path}: field '{prefix}{field}' is {have.get(field)!r} but {whose} is {want.get(field)!r}; "
+                "a gate holds only for the policy, critic and JITI settings it validated"
+            )
 
 
 def _net(row: dict[str, Any], mode: str) -> int:
@@ -146,8 +145,12 @@ def _choose_modes(tasks: dict[str, dict[str, Any]], modes: tuple[str, ...], budg
     return limit
 
 
-def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_run: str | os.PathLike | None = None,
-              budget: float = INTERVENTION_BUDGET) -> dict[str, Any]:
+def task_gate(
+    base_run: str | os.PathLike,
+    jiti_run: str | os.PathLike,
+    always_run: str | os.PathLike | None = None,
+    budget: float = INTERVENTION_BUDGET,
+) -> dict[str, Any]:
     """Per task, JITI's (and `always`'s) paired effect on ESR in validation runs, and the mode to run it in.
 
     The runs must share suite, seed, init states and episode settings (so episode i of a task starts
@@ -164,8 +167,10 @@ def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_r
         configs[mode], runs[mode] = _run(path, mode)
         for field in ("suite", "seed", "init_states", "perturbation", "max_steps", "policy"):
             if base_config.get(field) != configs[mode].get(field):
-                raise UserInputError(f"{path}: field {field!r} is {configs[mode].get(field)!r} but the base run {base_run} has "
-                                     f"{base_config.get(field)!r}; validate every run on the same starts with the same policy")
+                raise UserInputError(
+                    f"{path}: field {field!r} is {configs[mode].get(field)!r} but the base run {base_run} has "
+                    f"{base_config.get(field)!r}; validate every run on the same starts with the same policy"
+                )
     agent = _agent(configs["jiti"])
     if always_run is not None:
         _refuse_other_agent(always_run, agent, configs["always"], f"the JITI run {jiti_run}'s")
@@ -173,23 +178,38 @@ def task_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, always_r
         raise UserInputError(f"gate budget must be in (0, 1] (a share of always's interventions), got {budget}")
     tasks = _paired_effects(base, runs)
     if not tasks:
-        raise UserInputError(f"{base_run} and {', '.join(map(str, paths.values()))} share no finished episode of any task")
+        raise UserInputError(
+            f"{base_run} and {', '.join(map(str, paths.values()))} share no finished episode of any task"
+        )
     limit = _choose_modes(tasks, tuple(runs), budget)
-    return {"format": GATE_FORMAT, "suite": base_config["suite"], "init_states": base_config.get("init_states"),
-            "base_run": os.path.abspath(base_run), **{f"{m}_run": os.path.abspath(p) for m, p in paths.items()}, "agent": agent,
-            **({} if limit is None else {"budget": budget, "interventions_limit": limit}), "tasks": tasks}
+    return {
+        "format": GATE_FORMAT,
+        "suite": base_config["suite"],
+        "init_states": base_config.get("init_states"),
+        "base_run": os.path.abspath(base_run),
+        **{f"{m}_run": os.path.abspath(p) for m, p in paths.items()},
+        "agent": agent,
+        **({} if limit is None else {"budget": budget, "interventions_limit": limit}),
+        "tasks": tasks,
+    }
 
 
-def write_gate(base_run: str | os.PathLike, jiti_run: str | os.PathLike, out: str | os.PathLike,
-               always_run: str | os.PathLike | None = None, budget: float = INTERVENTION_BUDGET) -> dict[str, Any]:
+def write_gate(
+    base_run: str | os.PathLike,
+    jiti_run: str | os.PathLike,
+    out: str | os.PathLike,
+    always_run: str | os.PathLike | None = None,
+    budget: float = INTERVENTION_BUDGET,
+) -> dict[str, Any]:
     """`task_gate` written atomically to `out` (JSON); returns it."""
     gate = task_gate(base_run, jiti_run, always_run, budget)
     atomic_write(out, json.dumps(gate, indent=2))
     return gate
 
 
-def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states: list[int] | None,
-              agent: dict[str, Any]) -> dict[str, str]:
+def read_gate(
+    path: str | os.PathLike, suite: str, tasks: list[str], init_states: list[int] | None, agent: dict[str, Any]
+) -> dict[str, str]:
     """{task: the mode it runs in (base, jiti or always)} for an evaluation of `tasks` of `suite` from
     `init_states` (None: all) whose `agent` is {"policy", "critic", "jiti"} as its config.json names them.
 
@@ -198,7 +218,9 @@ def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states
     evaluation uses: a gate chosen on the evaluated starts would report its own selection as an effect."""
     gate = read_json_file(path, "gate")
     if not isinstance(gate, dict) or gate.get("format") != GATE_FORMAT:
-        raise UserInputError(f"{path}: field 'format' is not {GATE_FORMAT!r}; write the gate (again) with `elegant gate`")
+        raise UserInputError(
+            f"{path}: field 'format' is not {GATE_FORMAT!r}; write the gate (again) with `elegant gate`"
+        )
     if gate.get("suite") != suite:
         raise UserInputError(f"{path}: field 'suite' is {gate.get('suite')!r} but the evaluation is on {suite!r}")
     _refuse_other_agent(path, agent, gate.get("agent") or {}, "this evaluation's", prefix="agent.")
@@ -207,11 +229,18 @@ def read_gate(path: str | os.PathLike, suite: str, tasks: list[str], init_states
         raise UserInputError(f"{path}: field 'tasks' lacks {', '.join(missing)}; validate those tasks too")
     validated = gate.get("init_states")
     if validated is None or init_states is None or set(validated) & set(init_states):
-        shared = "all init states" if validated is None or init_states is None else sorted(set(validated) & set(init_states))
-        raise UserInputError(f"{path}: field 'init_states' overlaps the evaluation's starts ({shared}); validate on other starts, "
-                             "e.g. --init-states 0-24 for the gate and 25-49 for the evaluation")
+        shared = (
+            "all init states" if validated is None or init_states is None else sorted(set(validated) & set(init_states))
+        )
+        raise UserInputError(
+            f"{path}: field 'init_states' overlaps the evaluation's starts ({shared}); validate on other starts, "
+            "e.g. --init-states 0-24 for the gate and 25-49 for the evaluation"
+        )
     modes = {t: gate["tasks"][t].get("mode") for t in tasks}
     wrong = [t for t, m in modes.items() if m not in ("base", *GATED_MODES)]
     if wrong:
-        raise UserInputError(f"{path}: field 'tasks.{wrong[0]}.mode' is {modes[wrong[0]]!r}; expected one of base, {', '.join(GATED_MODES)}")
+        raise UserInputError(
+            f"{path}: field 'tasks.{wrong[0]}.mode' is {modes[wrong[0]]!r}; expected one of base, "
+            f"{', '.join(GATED_MODES)}"
+        )
     return modes

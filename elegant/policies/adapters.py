@@ -10,6 +10,7 @@ Stateful policies (LeRobot's action queues, history windows) must not be stepped
 step, so `sample(obs, n)` right after `__call__(obs)` reuses the action of that call instead of asking
 the policy again. torch and tensordict are imported only by the adapters that need them.
 """
+
 from __future__ import annotations
 
 import inspect
@@ -20,7 +21,16 @@ from typing import Any
 import numpy as np
 
 from base_suites.runtime.errors import UserInputError
-from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, GaussianCandidates, Observation, Policy, as_action, check_count
+from elegant.policies.protocol import (
+    ACTION_DIM,
+    ACTION_HIGH,
+    ACTION_LOW,
+    GaussianCandidates,
+    Observation,
+    Policy,
+    as_action,
+    check_count,
+)
 
 StateFn = Callable[[np.ndarray, Mapping[str, Any] | None], np.ndarray]
 """Maps (obs["state"], env metadata or None) to the state vector a foreign policy expects."""
@@ -117,7 +127,9 @@ class PolicyAdapter:
 
     def _state(self, obs: Observation, state_fn: StateFn | None) -> np.ndarray:
         if "state" not in obs:
-            raise UserInputError(f"{self.name}: the observation has no 'state' entry; make the env with obs='lowdim' or 'both'")
+            raise UserInputError(
+                f"{self.name}: the observation has no 'state' entry; make the env with obs='lowdim' or 'both'"
+            )
         state = np.asarray(obs["state"], dtype=np.float64)
         return state if state_fn is None else np.asarray(state_fn(state, self.metadata), dtype=np.float64)
 
@@ -239,7 +251,12 @@ class TorchRLPolicy(PolicyAdapter):
     ) -> None:
         import torch
         from tensordict import TensorDict
-        from tensordict.nn import InteractionType, ProbabilisticTensorDictModule, ProbabilisticTensorDictSequential, set_interaction_type
+        from tensordict.nn import (
+            InteractionType,
+            ProbabilisticTensorDictModule,
+            ProbabilisticTensorDictSequential,
+            set_interaction_type,
+        )
 
         super().__init__(noise_scale=noise_scale, seed=seed)
         self._torch, self._TensorDict = torch, TensorDict
@@ -272,7 +289,11 @@ class TorchRLPolicy(PolicyAdapter):
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(int(self.noise.rng.integers(2**63)))
             drawn = self._run(obs, [n - 1], self._interaction.RANDOM)
-        return np.clip(np.concatenate([action[None], np.asarray(drawn, dtype=np.float64).reshape(n - 1, ACTION_DIM)]), ACTION_LOW, ACTION_HIGH)
+        return np.clip(
+            np.concatenate([action[None], np.asarray(drawn, dtype=np.float64).reshape(n - 1, ACTION_DIM)]),
+            ACTION_LOW,
+            ACTION_HIGH,
+        )
 
 
 def _flat_keys(keys: Sequence[Any]) -> set[str]:

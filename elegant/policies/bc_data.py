@@ -4,6 +4,7 @@ BC needs only the env's low-dimensional `obs/state` and `actions`, so unannotate
 Files may hold several tasks; the state layout of each task comes from the file's `state_layouts` and
 must agree across files, because the policy will refuse envs whose layout differs from it.
 """
+
 from __future__ import annotations
 
 import os
@@ -50,17 +51,26 @@ def load_demos(paths: Sequence[str | os.PathLike], successful_only: bool = False
             for name, layout in f.state_layouts.items():
                 layout = [[str(n), int(s)] for n, s in layout]
                 if data.layouts.setdefault(name, layout) != layout:
-                    raise UserInputError(f"{f.path}: data.state_layouts[{name!r}] differs from the layout of the same task in an earlier file")
+                    raise UserInputError(
+                        f"{f.path}: data.state_layouts[{name!r}] differs from the layout of the same task in an "
+                        "earlier file"
+                    )
             for demo in f:
                 key = demo.task_key
                 if key not in f.state_layouts:
-                    raise UserInputError(f"{f.path}: data.state_layouts has no entry for task {key!r} of data/{demo.name}")
+                    raise UserInputError(
+                        f"{f.path}: data.state_layouts has no entry for task {key!r} of data/{demo.name}"
+                    )
                 width = sum(s for _, s in data.layouts[key])
                 where = f"{f.path}: data/{demo.name}"
                 if demo.obs.ndim != 2 or demo.obs.shape[1] != width:
-                    raise UserInputError(f"{where}/obs/state has shape {demo.obs.shape}; expected (T, {width}) from the layout of {key}")
+                    raise UserInputError(
+                        f"{where}/obs/state has shape {demo.obs.shape}; expected (T, {width}) from the layout of {key}"
+                    )
                 if demo.actions.shape != (len(demo.obs), ACTION_DIM):
-                    raise UserInputError(f"{where}/actions has shape {demo.actions.shape}; expected ({len(demo.obs)}, {ACTION_DIM})")
+                    raise UserInputError(
+                        f"{where}/actions has shape {demo.actions.shape}; expected ({len(demo.obs)}, {ACTION_DIM})"
+                    )
                 if len(demo.obs) == 0 or (successful_only and not bool(demo.attrs.get("success", True))):
                     continue
                 data.episodes.append(Episode(key, demo.obs.astype(np.float64), demo.actions.astype(np.float32)))

@@ -7,6 +7,7 @@ until enough steps exist, so the first action sees a full-width input like every
 per task because the same padded slot holds different objects in different tasks; dimensions that
 barely vary in the demos get a floor on their scale so small run-time deviations do not explode.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -25,10 +26,13 @@ class BCFeatures:
     def __init__(self, encoder: TaskFeatureEncoder, stats: Mapping[str, Mapping[str, Any]], history: int) -> None:
         self.encoder = encoder
         self.history = int(history)
-        self.stats = {k: (np.asarray(v["mean"], dtype=np.float64), np.asarray(v["std"], dtype=np.float64)) for k, v in stats.items()}
+        self.stats = {
+            k: (np.asarray(v["mean"], dtype=np.float64), np.asarray(v["std"], dtype=np.float64))
+            for k, v in stats.items()
+        }
 
     @classmethod
-    def fit(cls, data: DemoSet, *, history: int, min_std: float) -> "BCFeatures":
+    def fit(cls, data: DemoSet, *, history: int, min_std: float) -> BCFeatures:
         stats = {}
         for key in data.layouts:
             states = np.concatenate([e.states for e in data.episodes if e.task == key])
@@ -60,5 +64,5 @@ class BCFeatures:
         }
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "BCFeatures":
+    def from_dict(cls, data: Mapping[str, Any]) -> BCFeatures:
         return cls(TaskFeatureEncoder.from_dict(data["encoder"]), data["normalization"], data["history"])

@@ -5,6 +5,7 @@ distractor), which a single Gaussian averages into a collision; and JITI needs t
 distribution to draw candidate actions from. Means are tanh-squashed into the action bounds; standard
 deviations are softplus plus a floor, so the likelihood cannot collapse onto a single demo point.
 """
+
 from __future__ import annotations
 
 import math
@@ -25,7 +26,9 @@ DEFAULT_MODES = 16
 class GMMHead(nn.Module):
     """Maps trunk features to mixture logits (B, K), means (B, K, A) in (-1, 1) and stds (B, K, A)."""
 
-    def __init__(self, in_dim: int, *, action_dim: int = ACTION_DIM, modes: int = DEFAULT_MODES, min_std: float = 1e-4) -> None:
+    def __init__(
+        self, in_dim: int, *, action_dim: int = ACTION_DIM, modes: int = DEFAULT_MODES, min_std: float = 1e-4
+    ) -> None:
         super().__init__()
         self.action_dim, self.modes, self.min_std = action_dim, modes, float(min_std)
         self.logits = nn.Linear(in_dim, modes)
@@ -63,7 +66,9 @@ def gmm_component_means(logits: torch.Tensor, means: torch.Tensor, n: int, gener
     return means[0, gmm_draw_components(logits, n, generator)]
 
 
-def gmm_sample(logits: torch.Tensor, means: torch.Tensor, stds: torch.Tensor, n: int, generator: torch.Generator) -> torch.Tensor:
+def gmm_sample(
+    logits: torch.Tensor, means: torch.Tensor, stds: torch.Tensor, n: int, generator: torch.Generator
+) -> torch.Tensor:
     """Draw n actions (n, A) from the mixture of a single row (logits (1, K)), clipped to [-1, 1]."""
     component = gmm_draw_components(logits, n, generator)
     noise = torch.randn((n, means.shape[-1]), generator=generator, dtype=means.dtype)
@@ -80,8 +85,14 @@ class BCNet(nn.Module):
     The FiLM layers start at zero, so training starts from the plain MLP."""
 
     def __init__(
-        self, input_dim: int, *, hidden: Sequence[int] = (256, 256), action_dim: int = ACTION_DIM, modes: int = DEFAULT_MODES,
-        min_std: float = 1e-4, task_dim: int = 0,
+        self,
+        input_dim: int,
+        *,
+        hidden: Sequence[int] = (256, 256),
+        action_dim: int = ACTION_DIM,
+        modes: int = DEFAULT_MODES,
+        min_std: float = 1e-4,
+        task_dim: int = 0,
     ) -> None:
         super().__init__()
         layers: list[nn.Module] = []
@@ -101,7 +112,7 @@ class BCNet(nn.Module):
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         if self.film is None:
             return self.head(self.trunk(x))
-        task, h = x[..., -self.task_dim:], x
+        task, h = x[..., -self.task_dim :], x
         for linear, film in zip(self.trunk[0::2], self.film):
             gamma, beta = film(task).chunk(2, dim=-1)
             h = torch.relu(linear(h) * (1.0 + gamma) + beta)

@@ -20,6 +20,7 @@ decides again when it is used up; between decisions it still sees every observat
 history window is the same as a per-step policy's. `sample_plans` draws whole chunks from the mixture:
 each is one coherent way to carry on (a mode of the demonstrations), not one jittered step.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -47,8 +48,16 @@ class BCPolicy:
     single-task policy also works without metadata, checking only the state width.
     """
 
-    def __init__(self, net: BCNet, features: BCFeatures, *, path: str = "policy", seed: int = 0, config: Mapping[str, Any] | None = None,
-                 act: str = DEFAULT_POLICY_ACT) -> None:
+    def __init__(
+        self,
+        net: BCNet,
+        features: BCFeatures,
+        *,
+        path: str = "policy",
+        seed: int = 0,
+        config: Mapping[str, Any] | None = None,
+        act: str = DEFAULT_POLICY_ACT,
+    ) -> None:
         if act not in POLICY_ACTS:
             raise unknown_choice("policy act", act, POLICY_ACTS)
         self.act = act
@@ -85,15 +94,21 @@ class BCPolicy:
 
     def _state(self, obs: Observation) -> np.ndarray:
         if "state" not in obs:
-            raise UserInputError(f"{self.path}: the observation has no 'state' entry; make the env with obs='lowdim' or 'both'")
+            raise UserInputError(
+                f"{self.path}: the observation has no 'state' entry; make the env with obs='lowdim' or 'both'"
+            )
         return np.asarray(obs["state"], dtype=np.float64)
 
     def _push(self, state: np.ndarray) -> None:
         if self.task is None:
-            raise UserInputError(f"{self.path}: multi-task policy ({len(self.tasks)} tasks) needs reset(env.metadata) before acting")
+            raise UserInputError(
+                f"{self.path}: multi-task policy ({len(self.tasks)} tasks) needs reset(env.metadata) before acting"
+            )
         width = self.features.stats[self.task][0].shape[0]
         if state.shape != (width,):
-            raise UserInputError(f"{self.path}: observation 'state' has shape {state.shape}; task {self.task} expects ({width},)")
+            raise UserInputError(
+                f"{self.path}: observation 'state' has shape {state.shape}; task {self.task} expects ({width},)"
+            )
         encoded = self.features.encode(state, self.task)
         if not self._window:
             self._window.extend([encoded] * self.features.history)  # episode start: repeat the first state
@@ -144,7 +159,9 @@ class BCPolicy:
         self._see(obs)
         with torch.inference_mode():
             logits, means, stds = self._distribution()
-            return gmm_sample(logits, means, stds, n, self.generator).double().numpy().reshape(n, self.chunk, ACTION_DIM)
+            return (
+                gmm_sample(logits, means, stds, n, self.generator).double().numpy().reshape(n, self.chunk, ACTION_DIM)
+            )
 
     def sample(self, obs: Observation, n: int) -> np.ndarray:
         """n actions for this step: the first actions of n sampled plans (`sample_plans`)."""

@@ -12,6 +12,7 @@ some tasks of multi-task files (`tasks`), an input encoder fixed over more tasks
 the network as of intermediate epochs (`snapshot_epochs`, published like the final policy, because the
 protocol evaluates them and keeps the best).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -27,8 +28,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from base_suites.runtime.io import atomic_write, changed_fields
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import atomic_write, changed_fields
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
@@ -59,7 +60,13 @@ class BCConfig:
     obs_noise: float = 0.0
 
     def validate(self) -> None:
-        positive = {"epochs": self.epochs, "history": self.history, "batch_size": self.batch_size, "modes": self.modes, "chunk": self.chunk}
+        positive = {
+            "epochs": self.epochs,
+            "history": self.history,
+            "batch_size": self.batch_size,
+            "modes": self.modes,
+            "chunk": self.chunk,
+        }
         for name, value in positive.items():
             if int(value) != value or value < 1:
                 raise UserInputError(f"train_policy: {name} must be a positive integer, got {value!r}")
@@ -91,8 +98,9 @@ class _Windows:
             offset += len(episode.states)
         self.encoded = torch.from_numpy(np.concatenate(encoded))
         # state slots each row's task fills (the rest is padding): where observation noise may go
-        self.widths = torch.tensor([sum(size for _, size in data.layouts[e.task]) for e in data.episodes]).repeat_interleave(
-            torch.tensor([len(e.states) for e in data.episodes]))
+        self.widths = torch.tensor(
+            [sum(size for _, size in data.layouts[e.task]) for e in data.episodes]
+        ).repeat_interleave(torch.tensor([len(e.states) for e in data.episodes]))
         self.starts = torch.from_numpy(np.concatenate(starts))
         self.ends = torch.from_numpy(np.concatenate(ends))
         self.actions = torch.from_numpy(np.concatenate([e.actions for e in data.episodes]))
@@ -103,7 +111,9 @@ class _Windows:
     def __len__(self) -> int:
         return len(self.actions)
 
-    def batch(self, index: torch.Tensor, noise: float = 0.0, generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def batch(
+        self, index: torch.Tensor, noise: float = 0.0, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         rows = torch.maximum(index[:, None] - self.back, self.starts[index][:, None])
         targets = torch.minimum(index[:, None] + self.ahead, self.ends[index][:, None])
         window = self.encoded[rows]  # advanced indexing: a copy, safe to jitter in place
@@ -122,10 +132,15 @@ def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
     try:
         state = torch.load(path, weights_only=True)
     except Exception as exc:  # a truncated or foreign file surfaces as many exception types
-        raise UserInputError(f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume") from None
+        raise UserInputError(
+            f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume"
+        ) from None
     # checkpoints from before the success filter trained on every demo
-    changed = changed_fields(state.get("fingerprint") if isinstance(state, dict) else None, fingerprint,
-                             added={"successful_only": False, "config": {"obs_noise": 0.0}})
+    changed = changed_fields(
+        state.get("fingerprint") if isinstance(state, dict) else None,
+        fingerprint,
+        added={"successful_only": False, "config": {"obs_noise": 0.0}},
+    )
     if changed:
         key, was, now = changed[0]
         raise UserInputError(f"{path}: cannot resume, field {key!r} was {was!r} and is now {now!r}")
@@ -146,24 +161,34 @@ def select_tasks(data: DemoSet, tasks: Sequence[str] | None) -> DemoSet:
     missing = [t for t in wanted if t not in {e.task for e in episodes}]
     if missing:
         files = ", ".join(f["path"] for f in data.files)
-        raise UserInputError(f"{files}: no demos of task {', '.join(missing)}; found only {', '.join(sorted(data.layouts))}")
+        raise UserInputError(
+            f"{files}: no demos of task {', '.join(missing)}; found only {', '.join(sorted(data.layouts))}"
+        )
     return DemoSet({k: data.layouts[k] for k in wanted}, episodes, data.files)
 
 
-def _input_features(data: DemoSet, cfg: BCConfig, features: BCFeatures | None, init: Init | None, init_from: str | None) -> BCFeatures:
+def _input_features(
+    data: DemoSet, cfg: BCConfig, features: BCFeatures | None, init: Init | None, init_from: str | None
+) -> BCFeatures:
     """Fit the features on the data unless they are fixed by the caller or come with the init network."""
     if init is not None:
         if features is not None:
-            raise UserInputError("train_policy: give features or init_from, not both (init_from brings its policy's features)")
+            raise UserInputError(
+                "train_policy: give features or init_from, not both (init_from brings its policy's features)"
+            )
         features = init[1]
     elif features is None:
         return BCFeatures.fit(data, history=cfg.history, min_std=cfg.obs_min_std)
     where = init_from or "train_policy: features"
     if features.history != cfg.history:
-        raise UserInputError(f"{where}: input history is {features.history} states but this run has history={cfg.history}")
+        raise UserInputError(
+            f"{where}: input history is {features.history} states but this run has history={cfg.history}"
+        )
     for key, layout in data.layouts.items():
         if features.encoder.layouts.get(key) != layout:
-            raise UserInputError(f"{where}: the input encoder does not know task {key} with the layout of the demo files")
+            raise UserInputError(
+                f"{where}: the input encoder does not know task {key} with the layout of the demo files"
+            )
     return features
 
 
@@ -227,12 +252,28 @@ def train_policy(
     also modulates every hidden layer (see `BCNet`); off, it enters at the input only. `obs_noise`: the
     std, in normalised units, of Gaussian noise added to the input states during training (see `_Windows`).
     """
-    cfg = BCConfig(epochs, seed, history, batch_size, lr, weight_decay, tuple(hidden), modes, min_std, obs_min_std, grad_clip, chunk, task_film,
-                   obs_noise)
+    cfg = BCConfig(
+        epochs,
+        seed,
+        history,
+        batch_size,
+        lr,
+        weight_decay,
+        tuple(hidden),
+        modes,
+        min_std,
+        obs_min_std,
+        grad_clip,
+        chunk,
+        task_film,
+        obs_noise,
+    )
     cfg.validate()
     snapshots = set(snapshot_epochs)
     if any(int(e) != e or not 0 <= e <= cfg.epochs for e in snapshots):
-        raise UserInputError(f"train_policy: snapshot_epochs must be epochs in 0..{cfg.epochs}, got {sorted(snapshots)}")
+        raise UserInputError(
+            f"train_policy: snapshot_epochs must be epochs in 0..{cfg.epochs}, got {sorted(snapshots)}"
+        )
     if os.path.exists(out) and not os.path.isdir(out):
         raise UserInputError(f"{out}: exists and is not a directory")
     os.makedirs(out, exist_ok=True)
@@ -248,13 +289,26 @@ def train_policy(
     }
     features = _input_features(data, cfg, features, init, init_from)
     windows = _Windows(data, features, cfg.chunk)
-    model_spec = {"input_dim": features.input_dim, "hidden": list(cfg.hidden), "action_dim": ACTION_DIM * cfg.chunk, "modes": cfg.modes,
-                  "min_std": cfg.min_std, "chunk": cfg.chunk, "task_dim": len(features.encoder.tasks) if cfg.task_film else 0}
+    model_spec = {
+        "input_dim": features.input_dim,
+        "hidden": list(cfg.hidden),
+        "action_dim": ACTION_DIM * cfg.chunk,
+        "modes": cfg.modes,
+        "min_std": cfg.min_std,
+        "chunk": cfg.chunk,
+        "task_dim": len(features.encoder.tasks) if cfg.task_film else 0,
+    }
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
-        net = BCNet(features.input_dim, hidden=cfg.hidden, action_dim=ACTION_DIM * cfg.chunk, modes=cfg.modes, min_std=cfg.min_std,
-                    task_dim=model_spec["task_dim"])
+        net = BCNet(
+            features.input_dim,
+            hidden=cfg.hidden,
+            action_dim=ACTION_DIM * cfg.chunk,
+            modes=cfg.modes,
+            min_std=cfg.min_std,
+            task_dim=model_spec["task_dim"],
+        )
     if init is not None:
         _start_from(net, init, model_spec, init_from)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -269,8 +323,14 @@ def train_policy(
     def publish(directory: str) -> None:
         """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
         os.makedirs(directory, exist_ok=True)
-        training = {"config": asdict(cfg), "data": data.files, "loss_history": list(losses), "num_samples": len(windows), **origin,
-                    "init_from_path": None if init_from is None else os.path.abspath(init_from)}
+        training = {
+            "config": asdict(cfg),
+            "data": data.files,
+            "loss_history": list(losses),
+            "num_samples": len(windows),
+            **origin,
+            "init_from_path": None if init_from is None else os.path.abspath(init_from),
+        }
         write_artifact(directory, net, features, model_spec, training)
 
     start_epoch = 0
@@ -284,7 +344,13 @@ def train_policy(
     if start_epoch == 0 and 0 in snapshots:
         publish(snapshot_dir(out, 0))
 
-    bar = tqdm(total=cfg.epochs * steps_per_epoch, initial=start_epoch * steps_per_epoch, disable=not progress, desc="train-policy", unit="batch")
+    bar = tqdm(
+        total=cfg.epochs * steps_per_epoch,
+        initial=start_epoch * steps_per_epoch,
+        disable=not progress,
+        desc="train-policy",
+        unit="batch",
+    )
     net.train()
     for epoch in range(start_epoch, cfg.epochs):
         total = 0.0
@@ -303,10 +369,18 @@ def train_policy(
         bar.set_postfix(epoch=epoch + 1, nll=f"{losses[-1]:.3f}")
         if epoch + 1 in snapshots:  # before the checkpoint: a crash in between redoes this epoch and rewrites it
             publish(snapshot_dir(out, epoch + 1))
-        _save_checkpoint(checkpoint, {
-            "epoch": epoch + 1, "model": net.state_dict(), "optimizer": optimizer.state_dict(), "scheduler": scheduler.state_dict(),
-            "generator": generator.get_state(), "losses": losses, "fingerprint": fingerprint,
-        })
+        _save_checkpoint(
+            checkpoint,
+            {
+                "epoch": epoch + 1,
+                "model": net.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict(),
+                "generator": generator.get_state(),
+                "losses": losses,
+                "fingerprint": fingerprint,
+            },
+        )
         if on_epoch_end is not None:
             on_epoch_end({"epoch": epoch + 1, "nll": losses[-1]})
     bar.close()

@@ -6,6 +6,7 @@ moments and `reset(metadata, seed=)` at episode start. User objects need only be
 or TorchRL policy); `elegant.policies.as_policy` supplies the rest. The Gaussian candidate sampler used
 for deterministic policies lives here because every adapter shares it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,7 +20,11 @@ from base_suites.runtime.errors import UserInputError
 ACTION_DIM = 7
 ACTION_LOW = -1.0
 ACTION_HIGH = 1.0
-POLICY_ACTS = ("mode", "sample", "component")  # how a BC policy acts: its mixture's most likely mean, a draw, a drawn component's mean (elegant.policies.bc_policy)
+POLICY_ACTS = (
+    "mode",
+    "sample",
+    "component",
+)  # how a BC policy acts: its mixture's most likely mean, a draw, a drawn component's mean (elegant.policies.bc_policy)
 DEFAULT_POLICY_ACT = "mode"  # also what runs, gates and chains recorded before the act was a setting
 
 Observation = Mapping[str, np.ndarray]
@@ -69,7 +74,9 @@ def chunk_of(policy: Any) -> int:
     """How many actions one decision of `policy` commits to (1 unless it is a `ChunkedPolicy`)."""
     chunk = int(getattr(policy, "chunk", 1))
     if chunk > 1 and not isinstance(policy, ChunkedPolicy):
-        raise UserInputError(f"{type(policy).__name__} has chunk={chunk} but lacks plan, sample_plans or observe (see ChunkedPolicy)")
+        raise UserInputError(
+            f"{type(policy).__name__} has chunk={chunk} but lacks plan, sample_plans or observe (see ChunkedPolicy)"
+        )
     if chunk < 1:
         raise UserInputError(f"{type(policy).__name__}.chunk must be >= 1, got {chunk}")
     return chunk
@@ -115,7 +122,11 @@ class GaussianCandidates:
 
 def add_policy_act_argument(parser: argparse.ArgumentParser) -> None:
     """`--policy-act`, shared by `elegant eval`, `elegant rollouts` and the chain's benchmarks."""
-    parser.add_argument("--policy-act", choices=POLICY_ACTS, default=DEFAULT_POLICY_ACT,
-                        help="how the BC policy acts: its mixture's most likely mean (mode, deterministic), a draw from the "
-                             "mixture at every decision (sample, as LIBERO runs its BC policies) or the mean of a drawn "
-                             "component (component, LIBERO's low_eval_noise)")
+    parser.add_argument(
+        "--policy-act",
+        choices=POLICY_ACTS,
+        default=DEFAULT_POLICY_ACT,
+        help="how the BC policy acts: its mixture's most likely mean (mode, deterministic), a draw from the "
+        "mixture at every decision (sample, as LIBERO runs its BC policies) or the mean of a drawn "
+        "component (component, LIBERO's low_eval_noise)",
+    )

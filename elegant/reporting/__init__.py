@@ -1,5 +1,6 @@
 """What a person reads: a run's report (`write_run_report`: markdown and plots beside summary.json) and
 the side-by-side comparison of runs (`compare_runs`), paired on their shared starts."""
+
 from __future__ import annotations
 
 from base_suites.runtime.lazy import lazy_getattr

@@ -7,6 +7,7 @@ by side (`elegant report RUN_A RUN_B ...`) and, where runs differ only in their 
 LIBERO-PRO robustness numbers. Figures are drawn on `matplotlib.figure.Figure` directly, so no global
 pyplot state or GUI backend is involved; every file is written atomically.
 """
+
 from __future__ import annotations
 
 import io
@@ -19,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from annotations.format import CRITERIA, SEGMENT_LENGTH
-from base_suites.runtime.io import atomic_write
-from base_suites.runtime.errors import UserInputError
 from base_suites.perturbations import parse_perturbations
+from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import atomic_write
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import paired_comparison, robustness_metrics, summarize
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
@@ -45,6 +46,7 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
 
 
 # ---- plots -----------------------------------------------------------------------------------------
+
 
 def plot_bars(groups: Sequence[str], series: Mapping[str, Sequence[float]], title: str, path: Path) -> Path:
     """Grouped bars: one group per entry of `groups`, one bar per series (values are rates in [0, 1])."""
@@ -78,7 +80,7 @@ def plot_q_trace(trace: Mapping[str, Any], path: Path) -> Path:
     q, mean, tau, chosen_q = (_floats(d[k]) for k in ("q", "mean", "tau", "chosen_q"))
     fig = Figure(figsize=(9, 3.6))
     ax = fig.add_subplot()
-    for c, kept in trace.get("segments", {}).items():
+    for kept in trace.get("segments", {}).values():
         for w, ok in enumerate(kept):
             if not ok:
                 ax.axvspan(w * SEGMENT_LENGTH, (w + 1) * SEGMENT_LENGTH, color="tab:orange", alpha=0.07, lw=0)
@@ -86,17 +88,23 @@ def plot_q_trace(trace: Mapping[str, Any], path: Path) -> Path:
     ax.plot(steps, mean, "--", lw=1, color="gray", label="window mean")
     ax.fill_between(steps, mean - tau, mean + tau, color="gray", alpha=0.15, lw=0, label="mean ± τ")
     hit = np.asarray(d["intervened"], dtype=bool)
-    ax.scatter(steps[hit], chosen_q[hit], marker="v", s=18, color="tab:red", zorder=3, label="intervention (executed Q)")
+    ax.scatter(
+        steps[hit], chosen_q[hit], marker="v", s=18, color="tab:red", zorder=3, label="intervention (executed Q)"
+    )
     ax.set_xlabel("step")
     ax.set_ylabel("Q")
     violated = ", ".join(trace.get("violated", [])) or "none"
-    ax.set_title(f"{trace['task']} episode {trace['episode']} ({trace['mode']}): success={trace['success']}, "
-                 f"elegant={trace['elegant']}, violated: {violated} (shaded windows)", fontsize=9)
+    ax.set_title(
+        f"{trace['task']} episode {trace['episode']} ({trace['mode']}): success={trace['success']}, "
+        f"elegant={trace['elegant']}, violated: {violated} (shaded windows)",
+        fontsize=9,
+    )
     ax.legend(fontsize=7, loc="best")
     return save_figure(fig, path)
 
 
 # ---- one run ---------------------------------------------------------------------------------------
+
 
 def _with_interval(rate: float, interval: Sequence[float]) -> str:
     return f"{percent(rate)} [{percent(interval[0])}, {percent(interval[1])}]"
@@ -133,14 +141,22 @@ def _traced_episode(run_dir: Path, records: Sequence[Mapping[str, Any]]) -> dict
     return trace if any(v is not None for v in trace["decisions"]["q"]) else None
 
 
-def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], records: Sequence[Mapping[str, Any]]) -> list[Path]:
+def write_run_report(
+    run_dir: str | os.PathLike, summary: Mapping[str, Any], records: Sequence[Mapping[str, Any]]
+) -> list[Path]:
     """Write report.md and its PNG plots into `run_dir`; returns the files written."""
     run_dir = Path(run_dir)
     cfg = summary["config"]
     per_task = summary["per_task"]
     tasks = list(per_task)
-    files = [plot_bars(tasks, {"success": [per_task[t]["success_rate"] for t in tasks], "ESR": [per_task[t]["esr"] for t in tasks]},
-                       f"{cfg['suite']} — mode {cfg['mode']}", run_dir / "success_esr.png")]
+    files = [
+        plot_bars(
+            tasks,
+            {"success": [per_task[t]["success_rate"] for t in tasks], "ESR": [per_task[t]["esr"] for t in tasks]},
+            f"{cfg['suite']} — mode {cfg['mode']}",
+            run_dir / "success_esr.png",
+        )
+    ]
     trace = _traced_episode(run_dir, records)
     if trace is not None:
         files.append(plot_q_trace(trace, run_dir / "q_trace.png"))
@@ -168,8 +184,17 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
         "",
         markdown_table(
             ["task", "episodes", "success", "ESR", "interventions / ep", *CRITERIA],
-            [[t, b["episodes"], percent(b["success_rate"]), percent(b["esr"]), f"{b['interventions_per_episode']:.2f}",
-              *(percent(b["itc_violation_rate"][c]) for c in CRITERIA)] for t, b in per_task.items()],
+            [
+                [
+                    t,
+                    b["episodes"],
+                    percent(b["success_rate"]),
+                    percent(b["esr"]),
+                    f"{b['interventions_per_episode']:.2f}",
+                    *(percent(b["itc_violation_rate"][c]) for c in CRITERIA),
+                ]
+                for t, b in per_task.items()
+            ],
         ),
         "",
         "![success and ESR per task](success_esr.png)",
@@ -181,6 +206,7 @@ def write_run_report(run_dir: str | os.PathLike, summary: Mapping[str, Any], rec
 
 
 # ---- several runs ----------------------------------------------------------------------------------
+
 
 def _load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """A finished run's summary and episode records. The metrics are recomputed from the records, so runs
@@ -207,8 +233,12 @@ def _paired_rows(labels: Sequence[str], runs: Sequence[Sequence[Mapping[str, Any
 
 
 def _paired_cell(p: Mapping[str, Any]) -> str:
-    return (f"{100 * p['difference']:+.1f} points ({p['only_after']} gained, {p['only_before']} lost; p = {p['p_value']:.3g})"
-            if p["pairs"] else "no shared starts")
+    return (
+        f"{100 * p['difference']:+.1f} points ({p['only_after']} gained, {p['only_before']} lost; p = "
+        f"{p['p_value']:.3g})"
+        if p["pairs"]
+        else "no shared starts"
+    )
 
 
 def perturbation_axis(perturbation: str | None) -> str:
@@ -224,7 +254,16 @@ def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     groups: dict[str, dict[str, Mapping[str, Any]]] = {}
     for s in summaries:
         cfg = s["config"]
-        key = json.dumps([cfg["suite"], cfg["tasks"], cfg["policy"], cfg["critic"], cfg["mode"], cfg.get("policy_act", DEFAULT_POLICY_ACT)])
+        key = json.dumps(
+            [
+                cfg["suite"],
+                cfg["tasks"],
+                cfg["policy"],
+                cfg["critic"],
+                cfg["mode"],
+                cfg.get("policy_act", DEFAULT_POLICY_ACT),
+            ]
+        )
         groups.setdefault(key, {})[perturbation_axis(cfg["perturbation"])] = s
     out = {}
     for key, by_axis in groups.items():
@@ -263,22 +302,53 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
         b = s["per_task"].get(t)
         return "—" if b is None else f"{percent(b['success_rate'])} / {percent(b['esr'])}"
 
-    lines = ["# Run comparison", "", markdown_table(["metric", *labels], rows), "", "## Success / ESR per task", "",
-             markdown_table(["task", *labels], [[t, *(cell(s, t) for s in summaries)] for t in tasks])]
+    lines = [
+        "# Run comparison",
+        "",
+        markdown_table(["metric", *labels], rows),
+        "",
+        "## Success / ESR per task",
+        "",
+        markdown_table(["task", *labels], [[t, *(cell(s, t) for s in summaries)] for t in tasks]),
+    ]
     paired = _paired_rows(labels, records)
     if paired:
-        lines += ["", f"## Paired with {labels[0]}", "",
-                  "Episodes of two runs with the same seed start alike; each cell counts the starts where only one "
-                  "of the two runs succeeded (or succeeded elegantly), with McNemar's exact p-value.", "",
-                  markdown_table(["run", "episode pairs", "success", "ESR"],
-                         [[p["run"], p["success"]["pairs"], _paired_cell(p["success"]), _paired_cell(p["elegant"])] for p in paired])]
+        lines += [
+            "",
+            f"## Paired with {labels[0]}",
+            "",
+            "Episodes of two runs with the same seed start alike; each cell counts the starts where only one "
+            "of the two runs succeeded (or succeeded elegantly), with McNemar's exact p-value.",
+            "",
+            markdown_table(
+                ["run", "episode pairs", "success", "ESR"],
+                [
+                    [p["run"], p["success"]["pairs"], _paired_cell(p["success"]), _paired_cell(p["elegant"])]
+                    for p in paired
+                ],
+            ),
+        ]
     robustness = _robustness(summaries)
     for name, r in robustness.items():
         axes = list(r["success"]["acc"])
-        lines += ["", f"## Robustness (LIBERO-PRO): {name}", "", markdown_table(
-            ["", "ori", *axes, "PRO (mean over axes)", "mean gap"],
-            [[kind, percent(r[kind]["acc_ori"]), *(f"{percent(r[kind]['acc'][a])} (gap {percent(r[kind]['gap'][a])})" for a in axes),
-              percent(r[kind]["pro"]), percent(r[kind]["mean_gap"])] for kind in ("success", "elegant")])]
+        lines += [
+            "",
+            f"## Robustness (LIBERO-PRO): {name}",
+            "",
+            markdown_table(
+                ["", "ori", *axes, "PRO (mean over axes)", "mean gap"],
+                [
+                    [
+                        kind,
+                        percent(r[kind]["acc_ori"]),
+                        *(f"{percent(r[kind]['acc'][a])} (gap {percent(r[kind]['gap'][a])})" for a in axes),
+                        percent(r[kind]["pro"]),
+                        percent(r[kind]["mean_gap"]),
+                    ]
+                    for kind in ("success", "elegant")
+                ],
+            ),
+        ]
     markdown = "\n".join(lines) + "\n"
     files: list[Path] = []
     if out is not None:
@@ -288,12 +358,16 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
         series = {}
         for label, s in zip(labels, summaries):
             for metric, name in (("success_rate", "success"), ("esr", "ESR")):
-                series[f"{label} {name}"] = [s[metric] if g == "all" else s["per_task"].get(g, {}).get(metric, np.nan) for g in groups]
+                series[f"{label} {name}"] = [
+                    s[metric] if g == "all" else s["per_task"].get(g, {}).get(metric, np.nan) for g in groups
+                ]
         files = [plot_bars(groups, series, "success and ESR per task", out / "comparison.png")]
         atomic_write(out / "comparison.md", markdown + "\n![success and ESR per task](comparison.png)\n")
         files.insert(0, out / "comparison.md")
     return {
-        "runs": [{"label": l, "dir": str(d), "config": s["config"]} for l, d, s in zip(labels, dirs, summaries)],
+        "runs": [
+            {"label": label, "dir": str(d), "config": s["config"]} for label, d, s in zip(labels, dirs, summaries)
+        ],
         "markdown": markdown,
         "paired": paired,
         "robustness": robustness,

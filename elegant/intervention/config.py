@@ -1,0 +1,130 @@
+"""JITI's settings: one frozen dataclass, each setting declared once with its reason (docs/design.md, JITI).
+
+The evaluation runner, the CLI and the chain take their JITI settings from these fields; run configs
+record `JITIConfig.record()`. A mode is a preset of a trigger (when to draw and re-rank candidates,
+`elegant.intervention.triggers`) and a selector (which candidate runs, `elegant.intervention.selectors`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, Literal, get_args
+
+from base_suites.runtime.errors import UserInputError, unknown_choice
+
+Mode = Literal["jiti", "always", "base", "random"]
+ThresholdMode = Literal["absolute", "std"]
+TriggerName = Literal["deviation", "drop", "none"]
+Warmup = Literal["base", "steer"]
+
+MODES: tuple[str, ...] = get_args(Mode)
+THRESHOLD_MODES: tuple[str, ...] = get_args(ThresholdMode)
+TRIGGERS: tuple[str, ...] = get_args(TriggerName)
+WARMUPS: tuple[str, ...] = get_args(Warmup)
+DEFAULT_THRESHOLD = 1.0
+DEFAULT_NOISE_SCALE = 0.1
+
+
+def _setting(default: Any, help: str, flag: str | None = None) -> Any:
+    """A field with the one-line help the CLI shows; `flag` names its option where the name differs."""
+    return field(default=default, metadata={"help": help, "flag": flag})
+
+
+@dataclass(frozen=True)
+class JITIConfig:
+    """How JITI decides. `mode`: "jiti" (re-rank at critical moments), "always" (at every decision: the
+    V-GPS baseline), "base" (never; the critic's scores are still logged), "random" (a random eligible
+    candidate at a `random_rate` of decisions, or at `random_steps`: the control, and the exploration of
+    recorded rollouts)."""
+
+    mode: Mode = _setting("jiti", "jiti: re-rank at critical moments; always: at every decision; base: never")
+    window: int = _setting(10, "JITI's window: the number of past decisions whose scores set the reference m_t")
+    threshold: float = _setting(DEFAULT_THRESHOLD, "tau: how far q_t may stray from m_t before JITI intervenes")
+    threshold_mode: ThresholdMode = _setting("absolute", "tau in Q units (absolute) or in the window's std (std)")
+    trigger: TriggerName = _setting(
+        "deviation", "mode jiti's critical moment: |q - m| > tau (deviation), m - q > tau (drop) or none"
+    )
+    warmup: Warmup = _setting(
+        "base", "what mode jiti's first --window decisions execute: the base plan (base) or the critic's choice (steer)"
+    )
+    n_candidates: int = _setting(
+        16, "candidates drawn from the policy per re-ranked decision, the base plan one of them", flag="--candidates"
+    )
+    noise_scale: float = _setting(
+        DEFAULT_NOISE_SCALE, "std of the Gaussian candidates around a policy's action when it cannot sample its own"
+    )
+    trust_radius: float | None = _setting(
+        None, "only candidates within this distance of the base plan may be chosen (default: no limit)"
+    )
+    min_gain: float = _setting(0.0, "a candidate must beat the base plan's score by more than this to replace it")
+    max_overrides: int | None = _setting(None, "mode jiti stops overriding after this many per episode (default: none)")
+    random_rate: float = _setting(0.1, "mode random: the fraction of decisions given a random eligible candidate")
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Refuse any setting that is unknown, out of range or not a number, with one line naming it."""
+        for name, choices in (
+            ("mode", MODES),
+            ("threshold_mode", THRESHOLD_MODES),
+            ("trigger", TRIGGERS),
+            ("warmup", WARMUPS),
+        ):
+            if getattr(self, name) not in choices:
+                raise unknown_choice(f"JITI {name}", getattr(self, name), choices)
+        if self.mode == "jiti" and self.trigger == "none" and self.warmup != "steer":
+            raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
+        if not int(self.window) >= 1:
+            raise UserInputError(f"JITI window must be >= 1, got {self.window}")
+        check_candidates(self.n_candidates)
+        if not (float(self.threshold) >= 0 and float(self.noise_scale) >= 0):
+            raise UserInputError(
+                f"JITI threshold and noise_scale must be >= 0, got {self.threshold} and {self.noise_scale}"
+            )
+        if self.trust_radius is not None and not float(self.trust_radius) > 0:
+            raise UserInputError(f"JITI trust_radius must be > 0 (or None for no limit), got {self.trust_radius}")
+        if not float(self.min_gain) >= 0:
+            raise UserInputError(f"JITI min_gain must be >= 0, got {self.min_gain}")
+        if not 0.0 <= float(self.random_rate) <= 1.0:
+            raise UserInputError(f"JITI random_rate must lie in [0, 1], got {self.random_rate}")
+        if self.max_overrides is not None and int(self.max_overrides) < 0:
+            raise UserInputError(f"JITI max_overrides must be >= 0 (or None for no limit), got {self.max_overrides}")
+
+    @classmethod
+    def settings(cls) -> tuple[str, ...]:
+        """The names of the settings, in declaration order (mode first)."""
+        return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def from_settings(cls, settings: dict[str, Any] | None = None, **overrides: Any) -> JITIConfig:
+        """A config from keyword settings, refusing names it does not have (one line listing its own)."""
+        merged = {**(settings or {}), **overrides}
+        unknown = sorted(set(merged) - set(cls.settings()))
+        if unknown:
+            raise UserInputError(f"jiti settings {unknown} unknown; expected some of: {', '.join(cls.settings())}")
+        return cls(**merged)
+
+    def record(self) -> dict[str, Any]:
+        """The settings as run configs record them (numbers as numbers, in the historical key order)."""
+        return {
+            "mode": self.mode,
+            "window": int(self.window),
+            "threshold": float(self.threshold),
+            "threshold_mode": self.threshold_mode,
+            "n_candidates": int(self.n_candidates),
+            "noise_scale": float(self.noise_scale),
+            "trust_radius": None if self.trust_radius is None else float(self.trust_radius),
+            "random_rate": float(self.random_rate),
+            "min_gain": float(self.min_gain),
+            "trigger": self.trigger,
+            "warmup": self.warmup,
+            "max_overrides": None if self.max_overrides is None else int(self.max_overrides),
+        }
+
+
+def check_candidates(n_candidates: int, setting: str = "JITI n_candidates") -> None:
+    """Refuse fewer than two candidates per decision: the base action and at least one alternative.
+    `setting` names the value in the error, as its owner (JITI, a chain) calls it."""
+    if int(n_candidates) < 2:
+        raise UserInputError(f"{setting} must be >= 2 (the base action plus alternatives), got {n_candidates}")
