@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, Literal, get_args
 
 import gymnasium as gym
 import numpy as np
@@ -35,7 +35,8 @@ from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.sim_view import SimView
 from base_suites.suites import TaskSpec, get_task
 
-OBS_MODES = ("lowdim", "rgb", "both")
+ObsMode = Literal["lowdim", "rgb", "both"]
+OBS_MODES: tuple[str, ...] = get_args(ObsMode)
 ROBOT_LAYOUT = (("robot0_eef_pos", 3), ("robot0_eef_quat", 4), ("robot0_gripper_qpos", 2), ("robot0_joint_pos", 7))
 SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1.0])
 CAMERA = "agentview"

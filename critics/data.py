@@ -57,9 +57,8 @@ from torchrl.objectives.value.functional import reward2go
 
 from annotations import CRITERIA, DemoFile, TaskFeatureEncoder
 from base_suites.runtime.errors import UserInputError, unknown_choice
+from critics.config import REWARDS
 from critics.normalization import Normalization
-
-REWARDS = ("step", "segment", "elegant")  # the violation penalty per step or per window; or an elegant success
 
 NO_FLOOR = -1.0e6  # an MC "floor" that never clips (for demos whose return is not a lower bound)
 

@@ -46,11 +46,10 @@ from torch import Tensor
 from torchrl.objectives import LossModule
 from torchrl.objectives.value.functional import td0_return_estimate
 
+from critics.config import BACKUPS, VALUE_LOSSES
 from critics.data import NO_FLOOR
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
-BACKUPS = ("policy", "dataset")  # the next action of the TD target: a' ~ pi(.|s'), or the dataset's (`CalQLLoss`)
-VALUE_LOSSES = ("mse", "bce")  # Q regressed on its target, or Q a logit classified against a target probability
 LOGIT_LIMIT = 10.0  # the logit floor of a certain outcome (sigmoid(10) = 0.99995)
 
 

@@ -20,7 +20,7 @@ import io
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, fields, replace
 from typing import Any
 
 import torch
@@ -28,11 +28,12 @@ from tensordict import TensorDictBase
 from torchrl.objectives import SoftUpdate
 from tqdm.auto import tqdm
 
-from base_suites.runtime.errors import UserInputError, unknown_choice
+from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, library_versions
 from critics.artifact import atomic_torch_save, save_critic
-from critics.data import REWARDS, TransitionData, load_transitions, make_replay_buffer
-from critics.loss import BACKUPS, VALUE_LOSSES, CalQLLoss
+from critics.config import TrainConfig
+from critics.data import TransitionData, load_transitions, make_replay_buffer
+from critics.loss import CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
 CHECKPOINT_FORMAT = "libero-elegant/critic-checkpoint/1"
@@ -40,74 +41,6 @@ CHECKPOINT_FILE = "checkpoint.pt"
 METRICS_FILE = "metrics.csv"
 # Arguments that may change between a run and its resumption (they do not affect the numbers).
 _RESUMABLE_CHANGES = ("steps", "checkpoint_every")
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    """Everything that determines the trained numbers (saved in the checkpoint and the artifact)."""
-
-    paths: list[str]
-    steps: int
-    batch_size: int = 256
-    seed: int = 0
-    n_actions: int = 10
-    hidden: list[int] = field(default_factory=lambda: [256, 256])
-    cql_weight: float = 5.0
-    temperature: float = 1.0
-    calibrate: bool = True
-    with_lagrange: bool = False
-    target_action_gap: float = 0.8
-    critic_lr: float = 3e-4
-    actor_lr: float = 1e-4
-    alpha_lr: float = 3e-4
-    tau: float = 0.005
-    log_every: int = 100
-    checkpoint_every: int = 1000
-    gamma: float | None = None  # None: the annotation's
-    reward: str = "step"  # the violation penalty per step or per window, or elegant success (critics.data.REWARDS)
-    chunk: int = 1  # actions per scored decision: the chunk length of the policy the critic will judge
-    backup: str = "policy"  # the TD target's next action (critics.loss.BACKUPS; see CalQLLoss)
-    weight_decay: float = 0.0  # decoupled (AdamW) weight decay of the critics' weights only
-    mc_weight: float = 0.0  # weight of Q's regression on the Monte-Carlo returns beside TD (CalQLLoss)
-    value_loss: str = "mse"  # or "bce": logit critics classified against target probabilities (CalQLLoss)
-    explored_fraction: float = 0.0  # share of each batch drawn from the explored decisions' transitions
-    bootstrap: int | None = None  # train on a bootstrap resample of the episodes drawn with this seed
-
-    @property
-    def explored_per_batch(self) -> int:
-        return round(self.batch_size * self.explored_fraction)
-
-    def validate(self) -> None:
-        for name in ("steps", "batch_size", "n_actions", "log_every", "checkpoint_every", "chunk"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise UserInputError(f"train-critic: {name} must be a positive integer, got {value!r}")
-        if not self.hidden or any(int(h) < 1 for h in self.hidden):
-            raise UserInputError(f"train-critic: hidden must list positive layer widths, got {self.hidden!r}")
-        if self.gamma is not None and not 0.0 < self.gamma < 1.0:
-            raise UserInputError(f"train-critic: gamma must lie in (0, 1), got {self.gamma}")
-        if self.reward not in REWARDS:
-            raise unknown_choice("train-critic reward", self.reward, REWARDS)
-        if self.backup not in BACKUPS:
-            raise unknown_choice("train-critic backup", self.backup, BACKUPS)
-        if self.value_loss not in VALUE_LOSSES:
-            raise unknown_choice("train-critic value_loss", self.value_loss, VALUE_LOSSES)
-        if self.value_loss == "bce" and self.reward != "elegant":
-            raise UserInputError(
-                "train-critic: value_loss 'bce' needs returns in [0, 1], i.e. reward 'elegant' (got reward "
-                f"{self.reward!r})"
-            )
-        for name in ("weight_decay", "mc_weight"):
-            if not getattr(self, name) >= 0.0:
-                raise UserInputError(f"train-critic: {name} must be >= 0, got {getattr(self, name)}")
-        if not 0.0 <= self.explored_fraction < 1.0 or (
-            self.explored_fraction > 0 and not 0 < self.explored_per_batch < self.batch_size
-        ):
-            raise UserInputError(
-                "train-critic: explored_fraction must lie in [0, 1) and leave at least one row of each kind in a "
-                "batch "
-                f"of {self.batch_size}, got {self.explored_fraction}"
-            )
 
 
 class _Run:
@@ -259,71 +192,30 @@ class _MetricsLog:
 def train_critic(
     paths: Sequence[str],
     out: str,
+    config: TrainConfig | None = None,
     *,
-    steps: int,
-    batch_size: int = 256,
-    seed: int = 0,
     resume: bool = False,
-    checkpoint_every: int = 1000,
-    n_actions: int = 10,
     progress: bool = True,
-    hidden: Sequence[int] = (256, 256),
-    cql_weight: float = 5.0,
-    calibrate: bool = True,
-    with_lagrange: bool = False,
-    log_every: int = 100,
-    gamma: float | None = None,
-    reward: str = "step",
-    chunk: int = 1,
-    backup: str = "policy",
-    weight_decay: float = 0.0,
-    mc_weight: float = 0.0,
-    value_loss: str = "mse",
-    explored_fraction: float = 0.0,
-    bootstrap: int | None = None,
+    **settings: Any,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
 
-    paths: annotated files (`elegant annotate`), all with the same gamma; steps: total gradient steps (a
-    resumed run continues up to it); batch_size: transitions per step; seed: network init, replay sampling
-    and action draws; resume: continue from out/checkpoint.pt (else a run refuses a directory that holds
-    one); checkpoint_every / log_every: steps between checkpoints / metrics rows; n_actions: N of the
-    uniform, pi(.|s) and pi(.|s') actions per state; hidden: layer widths of the critics and the actor;
-    cql_weight, calibrate, with_lagrange: see `CalQLLoss`; gamma: the critic's discount (default: the
-    annotation's), reward ("step", "segment" or "elegant") and chunk (actions per scored decision, the chunk length of
-    the policy the critic will judge): see `critics.data.load_transitions`; backup ("policy" or "dataset",
-    the TD target's next action): see `CalQLLoss`; weight_decay: decoupled weight decay of the critics (not
-    the actor); mc_weight, value_loss: see `CalQLLoss`; explored_fraction: the share of each batch drawn
-    from the transitions of explored decisions (`explored_steps` of `elegant rollouts` files), the rest
-    uniformly from all; bootstrap: a seed to train on a bootstrap resample of the episodes (one member of
-    a `CriticEnsemble`), see `critics.data.load_transitions`. Learning rates and tau are `TrainConfig`'s.
+    paths: annotated files (`elegant annotate`), all with the same gamma. The settings are `config`'s
+    (default: `TrainConfig`'s defaults), with keyword `settings` naming `TrainConfig` fields overriding it;
+    see each field's help. resume: continue from out/checkpoint.pt (else a run refuses a directory that
+    holds one); steps and checkpoint_every may change on resume, nothing else.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
     steps_per_second (of this invocation), and final (the last logged value of every loss and diagnostic).
     """
-    cfg = TrainConfig(
-        paths=[os.path.abspath(p) for p in paths],
-        steps=steps,
-        batch_size=batch_size,
-        seed=seed,
-        n_actions=n_actions,
-        hidden=[int(h) for h in hidden],
-        cql_weight=cql_weight,
-        calibrate=calibrate,
-        with_lagrange=with_lagrange,
-        log_every=log_every,
-        checkpoint_every=checkpoint_every,
-        gamma=gamma,
-        reward=reward,
-        chunk=chunk,
-        backup=backup,
-        weight_decay=weight_decay,
-        mc_weight=mc_weight,
-        value_loss=value_loss,
-        explored_fraction=explored_fraction,
-        bootstrap=bootstrap,
-    )
+    names = {f.name for f in fields(TrainConfig)} - {"paths"}
+    unknown = sorted(set(settings) - names)
+    if unknown:
+        raise UserInputError(f"train-critic: unknown settings {unknown}; expected some of: {', '.join(sorted(names))}")
+    if "hidden" in settings:
+        settings["hidden"] = [int(h) for h in settings["hidden"]]
+    cfg = replace(config or TrainConfig(), paths=[os.path.abspath(p) for p in paths], **settings)
     cfg.validate()
     os.makedirs(out, exist_ok=True)
     ckpt_path = os.path.join(out, CHECKPOINT_FILE)

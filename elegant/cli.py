@@ -92,12 +92,6 @@ def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
     add_workers_argument(p, default)
 
 
-def _policy_act_arg(p: argparse.ArgumentParser) -> None:
-    from elegant.policies.protocol import add_policy_act_argument  # light: no torch
-
-    add_policy_act_argument(p)
-
-
 def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
@@ -131,35 +125,15 @@ def _demos(args: argparse.Namespace) -> dict:
 
 
 def _rollouts_args(p: argparse.ArgumentParser) -> None:
+    from base_suites.runtime.settings import add_settings_arguments
+    from elegant.evaluation.config import RolloutConfig
+
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
-    p.add_argument("--episodes", type=int, default=50, help="episodes per task")
-    p.add_argument(
-        "--explore",
-        type=float,
-        default=0.0,
-        help="fraction of decisions given a random candidate within the trust radius",
-    )
-    p.add_argument(
-        "--explore-at",
-        help="instead of --explore: decision steps, e.g. 8,24,40; each episode takes a random "
-        "candidate at one of them (starts cycle first, then the steps), so episodes from one start differ in one "
-        "decision",
-    )
-    p.add_argument("--trust-radius", type=float, default=0.3)
-    _policy_act_arg(p)
-    p.add_argument(
-        "--init-states", help="start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)"
-    )
-    p.add_argument(
-        "--perturbation",
-        help="as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states",
-    )
-    p.add_argument("--max-steps", type=int)
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")
     p.add_argument("--resume", action="store_true", help="continue OUT.partial")
+    add_settings_arguments(p, RolloutConfig)
     _workers_arg(p)
 
 
@@ -168,24 +142,18 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     "record a policy's episodes (optionally exploring) as a demo-layout HDF5 for annotation and critic training",
 )(_rollouts_args)
 def _rollouts(args: argparse.Namespace) -> dict:
+    from base_suites.runtime.settings import settings_from_args
+    from elegant.evaluation.config import RolloutConfig
     from elegant.evaluation.rollouts import collect_rollouts
 
     return collect_rollouts(
         args.suite,
         _task_list(args.tasks),
         args.policy,
-        args.episodes,
         args.out,
-        explore=args.explore,
-        explore_at=parse_indices(args.explore_at, "--explore-at"),
-        trust_radius=args.trust_radius,
-        init_states=parse_indices(args.init_states, "--init-states"),
-        seed=args.seed,
-        max_steps=args.max_steps,
-        perturbation=args.perturbation,
         resume=args.resume,
         workers=args.workers,
-        policy_act=args.policy_act,
+        **settings_from_args(args, RolloutConfig),
     )
 
 
@@ -247,139 +215,54 @@ def _itc_spec(args: argparse.Namespace) -> dict:
 
 
 def _train_policy_args(p: argparse.ArgumentParser) -> None:
+    from base_suites.runtime.settings import add_settings_arguments
+    from elegant.policies.bc_config import BCConfig  # torch-free
+
     p.add_argument("data", nargs="+", help="demos HDF5 file(s)")
     p.add_argument("--out", required=True)
-    p.add_argument("--epochs", type=int, default=50)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--batch-size", type=int, default=256)
-    p.add_argument("--lr", type=float, default=1e-3)
-    p.add_argument("--history", type=int, default=10, help="states stacked as input")
-    p.add_argument(
-        "--chunk", type=int, default=1, help="actions predicted per decision and executed open-loop (action chunking)"
-    )
-    p.add_argument("--modes", type=int, help="components of the GMM action head (default 16)")
+    add_settings_arguments(p, BCConfig)
     p.add_argument(
         "--successful-only",
         action="store_true",
         help="train on the demos whose episode succeeded (as LIBERO's datasets hold)",
-    )
-    p.add_argument(
-        "--no-task-film",
-        dest="task_film",
-        action="store_false",
-        help="feed the task one-hot at the input only (policies before FiLM task conditioning)",
-    )
-    p.add_argument(
-        "--obs-noise",
-        type=float,
-        default=0.0,
-        help="std (normalised units) of Gaussian noise added to input states in training, "
-        "so the policy learns to steer back",
     )
     p.add_argument("--resume", action="store_true")
 
 
 @command("train-policy", "train the BC base policy (GMM head) on demos")(_train_policy_args)
 def _train_policy(args: argparse.Namespace) -> dict:
+    from base_suites.runtime.settings import settings_from_args
     from elegant.policies import train_policy
+    from elegant.policies.bc_config import BCConfig
 
     summary = train_policy(
         args.data,
         args.out,
-        epochs=args.epochs,
-        seed=args.seed,
-        resume=args.resume,
-        batch_size=args.batch_size,
-        lr=args.lr,
-        history=args.history,
-        chunk=args.chunk,
         successful_only=args.successful_only,
-        task_film=args.task_film,
-        obs_noise=args.obs_noise,
-        **({} if args.modes is None else {"modes": args.modes}),
+        resume=args.resume,
+        **settings_from_args(args, BCConfig),
     )
     summary.pop("loss_history", None)
     return summary
 
 
 def _train_critic_args(p: argparse.ArgumentParser) -> None:
+    from base_suites.runtime.settings import add_settings_arguments
+    from critics.config import TrainConfig  # torch-free
+
     p.add_argument("data", nargs="+", help="annotated HDF5 file(s) (from elegant annotate)")
     p.add_argument("--out", required=True)
-    p.add_argument("--steps", type=int, default=20000)
-    p.add_argument("--batch-size", type=int, default=256)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--n-actions", type=int, default=10, help="sampled actions per state for the CQL term")
-    p.add_argument("--cql-weight", type=float, default=5.0)
-    p.add_argument("--checkpoint-every", type=int, default=1000)
-    p.add_argument("--lagrange", action="store_true", help="tune the CQL weight with a Lagrange multiplier")
-    p.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
-    p.add_argument(
-        "--reward",
-        default="step",
-        help="step: penalise each violating step; segment: every step of a violating 25-frame window; "
-        "elegant: 1 for an elegant success, the episode ending at its first violating window",
-    )
-    p.add_argument(
-        "--chunk", type=int, default=1, help="actions per scored decision (the chunk length of the policy to judge)"
-    )
-    p.add_argument(
-        "--backup",
-        default="policy",
-        help="the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action, in-sample)",
-    )
-    p.add_argument("--hidden", default="256,256", help="hidden layer widths of the critics and the actor, e.g. 64,64")
-    p.add_argument("--weight-decay", type=float, default=0.0, help="decoupled weight decay of the critics' weights")
-    p.add_argument(
-        "--mc-weight", type=float, default=0.0, help="weight of Q's regression on the Monte-Carlo returns beside TD"
-    )
-    p.add_argument(
-        "--value-loss",
-        default="mse",
-        help="mse, or bce (with --reward elegant): the critics output logits fitted "
-        "to the target probability by cross-entropy",
-    )
-    p.add_argument(
-        "--explored-fraction",
-        type=float,
-        default=0.0,
-        help="share of each batch drawn from explored decisions (rollouts' explored_steps), e.g. 0.5",
-    )
-    p.add_argument(
-        "--bootstrap",
-        type=int,
-        metavar="SEED",
-        help="train on a bootstrap resample of the episodes drawn with this seed: one member of a critic "
-        "ensemble (pass the members' directories comma-separated to eval --critic)",
-    )
+    add_settings_arguments(p, TrainConfig, exclude=("paths",))
     p.add_argument("--resume", action="store_true")
 
 
 @command("train-critic", "train the Cal-QL elegance critic offline on annotated demos")(_train_critic_args)
 def _train_critic(args: argparse.Namespace) -> dict:
-    from critics import train_critic
+    from base_suites.runtime.settings import settings_from_args
+    from critics import TrainConfig, train_critic
 
-    return train_critic(
-        args.data,
-        args.out,
-        steps=args.steps,
-        batch_size=args.batch_size,
-        seed=args.seed,
-        resume=args.resume,
-        n_actions=args.n_actions,
-        cql_weight=args.cql_weight,
-        checkpoint_every=args.checkpoint_every,
-        with_lagrange=args.lagrange,
-        gamma=args.gamma,
-        reward=args.reward,
-        chunk=args.chunk,
-        backup=args.backup,
-        hidden=parse_indices(args.hidden, "--hidden"),
-        weight_decay=args.weight_decay,
-        mc_weight=args.mc_weight,
-        value_loss=args.value_loss,
-        explored_fraction=args.explored_fraction,
-        bootstrap=args.bootstrap,
-    )
+    settings = settings_from_args(args, TrainConfig, exclude=("paths",))
+    return train_critic(args.data, args.out, resume=args.resume, **settings)
 
 
 def _rank_check_args(p: argparse.ArgumentParser) -> None:
@@ -417,7 +300,8 @@ def _rank_check(args: argparse.Namespace) -> dict:
 
 def _eval_args(p: argparse.ArgumentParser) -> None:
     from base_suites.runtime.settings import add_settings_arguments
-    from elegant.intervention.config import MODES, JITIConfig  # light: no torch
+    from elegant.evaluation.config import EvalConfig
+    from elegant.intervention.config import JITIConfig  # light: no torch
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
@@ -427,47 +311,30 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
         help="critic directory (from train-critic), or comma-separated ones: an ensemble whose members "
         "must all prefer an override; required for jiti and always",
     )
-    p.add_argument("--mode", choices=MODES, default="jiti")
-    _policy_act_arg(p)
-    p.add_argument("--episodes", type=int, default=10, help="episodes per task")
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="run directory")
     p.add_argument("--resume", action="store_true", help="skip episodes already in RUN/episodes.jsonl")
-    p.add_argument("--perturbation", help="LIBERO-PRO perturbations, e.g. init:3,language")
-    p.add_argument("--max-steps", type=int)
-    add_settings_arguments(p, JITIConfig, exclude=("mode",))
-    p.add_argument("--init-states", help="start only from these shipped init states, e.g. 25-49 (default: all)")
-    p.add_argument(
-        "--gate",
-        help="mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)",
-    )
+    add_settings_arguments(p, EvalConfig, exclude=("jiti",))
+    add_settings_arguments(p, JITIConfig)
     _workers_arg(p)
 
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
 def _eval(args: argparse.Namespace) -> dict:
     from base_suites.runtime.settings import settings_from_args
+    from elegant.evaluation.config import EvalConfig
     from elegant.evaluation.runner import evaluate
     from elegant.intervention.config import JITIConfig
 
-    jiti_kwargs = settings_from_args(args, JITIConfig, exclude=("mode",))
+    settings = {**settings_from_args(args, EvalConfig, exclude=("jiti",)), **settings_from_args(args, JITIConfig)}
     summary = evaluate(
         args.suite,
         _task_list(args.tasks),
         args.policy,
         args.critic,
-        mode=args.mode,
-        episodes=args.episodes,
-        seed=args.seed,
         out=args.out,
         resume=args.resume,
-        perturbation=args.perturbation,
-        jiti_kwargs=jiti_kwargs,
-        max_steps=args.max_steps,
-        init_states=parse_indices(args.init_states, "--init-states"),
-        gate=args.gate,
         workers=args.workers,
-        policy_act=args.policy_act,
+        **settings,
     )
     return {k: v for k, v in summary.items() if k != "per_task"}
 
@@ -500,25 +367,14 @@ def _gate(args: argparse.Namespace) -> dict:
 
 
 def _lifelong_args(p: argparse.ArgumentParser) -> None:
+    from base_suites.runtime.settings import add_settings_arguments
+    from elegant.evaluation.config import LifelongConfig
+
     p.add_argument("data", nargs="+", help="demos HDF5 file(s) holding the demos of every task (from elegant demos)")
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", required=True, help="comma-separated task indices in learning order, e.g. 0,1,2")
     p.add_argument("--out", required=True, help="run directory")
-    p.add_argument("--epochs", type=int, default=50, help="training epochs per task")
-    p.add_argument(
-        "--eval-every",
-        type=int,
-        default=5,
-        help="evaluate the task being learned every E epochs (and before training on it)",
-    )
-    p.add_argument("--episodes", type=int, default=20, help="episodes per evaluation")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--max-steps", type=int, help="episode horizon (default: the suite's)")
-    p.add_argument(
-        "--modes",
-        type=int,
-        help="components of the policy's GMM head (default 16; runs from before this option used 5)",
-    )
+    add_settings_arguments(p, LifelongConfig)
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
     _workers_arg(p)
 
@@ -527,6 +383,8 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     "lifelong", "LIBERO's lifelong protocol (sequential fine-tuning): FWT, NBT, AUC from success and elegant success"
 )(_lifelong_args)
 def _lifelong(args: argparse.Namespace) -> dict:
+    from base_suites.runtime.settings import settings_from_args
+    from elegant.evaluation.config import LifelongConfig
     from elegant.evaluation.lifelong import run_lifelong
 
     result = run_lifelong(
@@ -534,14 +392,9 @@ def _lifelong(args: argparse.Namespace) -> dict:
         _task_list(args.tasks),
         args.data,
         args.out,
-        epochs=args.epochs,
-        eval_every=args.eval_every,
-        episodes=args.episodes,
-        seed=args.seed,
-        max_steps=args.max_steps,
         resume=args.resume,
         workers=args.workers,
-        **({} if args.modes is None else {"modes": args.modes}),
+        **settings_from_args(args, LifelongConfig),
     )
     return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
 

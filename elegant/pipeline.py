@@ -13,11 +13,14 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import asdict, dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS
+
+if TYPE_CHECKING:
+    from elegant.evaluation.config import EvalConfig
 
 MODES = ("base", "always", "jiti")
 
@@ -153,7 +156,7 @@ class ChainConfig:
                 "chain jiti_gate validates on the rollouts' starts, apart from the evaluated ones: give "
                 "critic_rollouts > 0"
             )
-        from critics import TrainConfig  # torch loads only when a chain runs
+        from critics.config import TrainConfig
 
         try:  # the critic's settings, checked by the critic's own rules before hours of demos, not after
             TrainConfig(paths=[], **self.critic_settings()).validate()
@@ -177,9 +180,24 @@ class ChainConfig:
             "explored_fraction": self.critic_explored_fraction,
         }
 
-    def jiti_settings(self, mode: str) -> dict[str, Any] | None:
+    def eval_config(self, mode: str, init_states: list[int] | None, gate: str | None = None) -> EvalConfig:
+        """How the chain evaluates `mode`: its episodes, seed, horizon and policy act, from `init_states`
+        (None: all), with `gate` in mode jiti."""
+        from elegant.evaluation.config import EvalConfig
+
+        return EvalConfig(
+            episodes=self.episodes,
+            seed=self.seed,
+            max_steps=self.max_steps,
+            policy_act=self.policy_act,
+            init_states=None if init_states is None else tuple(init_states),
+            gate=gate,
+        ).with_settings(mode=mode, **self.jiti_settings(mode))
+
+    def jiti_settings(self, mode: str) -> dict[str, Any]:
+        """The JITI settings the chain sets (the others keep `JITIConfig`'s defaults); none for a base run."""
         if mode == "base":
-            return None
+            return {}
         settings = {
             "trust_radius": self.trust_radius,
             "threshold": self.threshold,
@@ -388,16 +406,16 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
                 suite,
                 tasks,
                 policy_dir,
-                cfg.critic_rollouts,
                 rollouts[suite],
-                **explore,
+                resume=True,
+                progress=progress,
+                workers=workers,
+                episodes=cfg.critic_rollouts,
                 trust_radius=cfg.trust_radius,
                 init_states=rollout_starts,
                 seed=cfg.seed,
                 max_steps=cfg.max_steps,
-                resume=True,
-                progress=progress,
-                workers=workers,
+                **explore,
             )
         if not os.path.exists(annotated_rollouts[suite]):
             say(f"annotate the rollouts of {suite}")
@@ -422,17 +440,11 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
                     tasks,
                     policy_dir,
                     critic,
-                    mode=mode,
-                    episodes=cfg.episodes,
-                    seed=cfg.seed,
+                    cfg.eval_config(mode, rollout_starts),
                     out=validation[mode],
                     resume=True,
                     progress=progress,
-                    jiti_kwargs=cfg.jiti_settings(mode),
-                    max_steps=cfg.max_steps,
-                    init_states=rollout_starts,
                     workers=workers,
-                    policy_act=cfg.policy_act,
                 )
             gates[suite] = os.path.join(out, f"gate_{suite}.json")
             write_gate(validation["base"], validation["jiti"], gates[suite], always_run=validation.get("always"))
@@ -445,18 +457,11 @@ def run_chain(out: str, config: ChainConfig = QUICKSTART, progress: bool = True,
                 tasks,
                 policy_dir,
                 critic,
-                mode=mode,
-                episodes=cfg.episodes,
-                seed=cfg.seed,
+                cfg.eval_config(mode, eval_starts, gates[suite] if mode == "jiti" else None),
                 out=runs[mode][suite],
                 resume=True,
                 progress=progress,
-                jiti_kwargs=cfg.jiti_settings(mode),
-                max_steps=cfg.max_steps,
-                init_states=eval_starts,
-                gate=gates[suite] if mode == "jiti" else None,
                 workers=workers,
-                policy_act=cfg.policy_act,
             )
     report_dir = os.path.join(out, "report")
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)

@@ -246,8 +246,9 @@ def test_weight_decay_shrinks_the_critics_weights_only_and_binds_a_resume(annota
 
 
 def test_explored_fraction_fills_its_share_of_every_batch_with_explored_decisions(tmp_path):
+    from critics.config import TrainConfig
     from critics.data import load_transitions
-    from critics.train import TrainConfig, _Run
+    from critics.train import _Run
 
     path = write_annotated(tmp_path / "x.hdf5", n_demos=4, explored_at={0: [2, 5], 1: [0], 3: [7]})
     data = load_transitions([path])

@@ -36,20 +36,20 @@ class PlungePolicy:
 
 
 def run(out, mode="jiti", episodes=2, resume=False, **kw):
+    settings = {**JITI_SETTINGS, **kw}
     return evaluate(
         SUITE,
         [TASK],
         PlungePolicy(),
         ReachCritic(),
-        mode,
-        episodes,
-        0,
-        out,
+        out=out,
         resume=resume,
-        jiti_kwargs=JITI_SETTINGS,
         progress=False,
+        mode=mode,
+        episodes=episodes,
+        seed=0,
         max_steps=STEPS,
-        **kw,
+        **settings,
     )
 
 
@@ -141,13 +141,12 @@ def test_a_policy_workers_cannot_receive_is_refused_before_any_episode(tmp_path)
             [TASK],
             lambda obs: np.zeros(7),
             None,
-            "base",
-            2,
-            0,
-            tmp_path / "lambda",
+            out=tmp_path / "lambda",
             progress=False,
-            max_steps=STEPS,
             workers=2,
+            mode="base",
+            episodes=2,
+            max_steps=STEPS,
         )
     assert not (tmp_path / "lambda").exists()
 
@@ -193,18 +192,18 @@ def test_resume_drops_a_partial_last_line(runs):
 
 
 def test_bad_arguments_are_user_errors(tmp_path):
-    with pytest.raises(UserInputError, match="jiti settings"):
-        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), "jiti", 1, 0, tmp_path, jiti_kwargs={"windw": 3})
+    with pytest.raises(UserInputError, match="evaluation settings \\['windw'\\] unknown"):
+        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), out=tmp_path, episodes=1, windw=3)
     with pytest.raises(UserInputError, match="episodes"):
-        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), "jiti", 0, 0, tmp_path)
+        evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), out=tmp_path, episodes=0)
     with pytest.raises(UserInputError, match="needs a critic"):
-        evaluate(SUITE, [TASK], PlungePolicy(), None, "jiti", 1, 0, tmp_path)
+        evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, episodes=1)
     with pytest.raises(UserInputError, match="init states"):
-        evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, init_states=[])
+        evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, init_states=[])
     with pytest.raises(
         UserInputError, match="policy act 'sample' applies to a BC policy directory; a PlungePolicy decides its own"
     ):
-        evaluate(SUITE, [TASK], PlungePolicy(), None, "base", 1, 0, tmp_path, policy_act="sample")
+        evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, policy_act="sample")
 
 
 def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(runs):
@@ -242,11 +241,17 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     assert set(flags) == set(JITIConfig.settings()) - {"mode"}  # mode has its own --mode
     common = ["eval", "--suite", SUITE, "--policy", "p", "--out", str(tmp_path / "run")]
     assert main(common + [a for flag, text, _ in flags.values() for a in (flag, text)]) == 0
-    assert calls[-1]["jiti_kwargs"] == {name: value for name, (_, _, value) in flags.items()}
-    assert main(common + ["--min-gain", "0.05"]) == 0
-    assert calls[-1]["jiti_kwargs"] == {"min_gain": 0.05} and calls[-1]["policy_act"] == "mode"
-    assert main(common + ["--policy-act", "sample"]) == 0
-    assert calls[-1]["policy_act"] == "sample"
+    assert calls[-1] == {
+        "out": str(tmp_path / "run"),
+        "resume": False,
+        "workers": 1,
+        **{name: value for name, (_, _, value) in flags.items()},
+    }
+    assert main(common + ["--min-gain", "0.05"]) == 0  # a setting left out is not passed: the config's default holds
+    assert calls[-1] == {"out": str(tmp_path / "run"), "resume": False, "workers": 1, "min_gain": 0.05}
+    assert main(common + ["--policy-act", "sample", "--init-states", "0-2,5", "--mode", "base"]) == 0
+    assert calls[-1]["policy_act"] == "sample" and calls[-1]["init_states"] == (0, 1, 2, 5)
+    assert calls[-1]["mode"] == "base"
 
 
 def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tmp_path):
@@ -293,14 +298,13 @@ def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tm
             [TASK],
             PlungePolicy(),
             ReachCritic(),
-            "jiti",
-            2,
-            0,
-            tmp_path / "other_settings",
-            jiti_kwargs=other,
+            out=tmp_path / "other_settings",
             progress=False,
+            episodes=2,
+            seed=0,
             max_steps=STEPS,
             init_states=[2, 3],
             gate=str(gate_path),
+            **other,
         )
     assert not (tmp_path / "other_settings" / "episodes.jsonl").exists()

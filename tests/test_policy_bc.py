@@ -476,7 +476,9 @@ def test_successful_only_clones_the_successes_and_a_resume_must_agree(tmp_path):
 
 def test_evaluation_agents_act_as_asked_in_every_worker(policy_dir):
     """`build_agent` is what each evaluation worker calls: the act reaches the policy it loads."""
+    from elegant.evaluation.config import EvalConfig
     from elegant.evaluation.runner import build_agent
 
-    assert build_agent(policy_dir, None, "base", 0, {}).policy.act == "mode"
-    assert build_agent(policy_dir, None, "base", 0, {}, "sample").policy.act == "sample"
+    base = EvalConfig().with_settings(mode="base")
+    assert build_agent(policy_dir, None, base).policy.act == "mode"
+    assert build_agent(policy_dir, None, base.with_settings(policy_act="sample")).policy.act == "sample"

@@ -33,8 +33,8 @@ def collect_into(path, episodes=2, **kw):
         SUITE,
         [TASK],
         Lower(),
-        episodes,
         str(path),
+        episodes=episodes,
         explore=0.5,
         trust_radius=0.3,
         init_states=INITS,
@@ -65,8 +65,8 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
             SUITE,
             [TASK],
             Lower(),
-            2,
             str(tmp_path / "cut.hdf5"),
+            episodes=2,
             explore=0.3,
             trust_radius=0.3,
             init_states=INITS,
@@ -112,8 +112,8 @@ def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_
         SUITE,
         [TASK],
         Lower(),
-        6,
         str(tmp_path / "branches.hdf5"),
+        episodes=6,
         explore_at=[2, 5],
         trust_radius=0.3,
         init_states=INITS,
@@ -137,7 +137,7 @@ def test_explore_at_branches_each_start_once_per_point_from_a_shared_prefix(tmp_
     assert "warning" not in capsys.readouterr().err  # 6 episodes reach both points of 3 starts
     with pytest.raises(UserInputError, match="not both"):
         collect_rollouts(
-            SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), explore=0.1, explore_at=[2], progress=False
+            SUITE, [TASK], Lower(), str(tmp_path / "x.hdf5"), episodes=1, explore=0.1, explore_at=[2], progress=False
         )
 
 
@@ -148,8 +148,8 @@ def test_branch_points_no_episode_reaches_are_named(tmp_path, capsys):
         SUITE,
         [TASK],
         Lower(),
-        2,
         str(tmp_path / "short.hdf5"),
+        episodes=2,
         explore_at=[2, 5],
         trust_radius=0.3,
         init_states=INITS,
@@ -171,8 +171,8 @@ def test_nudged_rollouts_start_apart_and_replay_from_their_records(tmp_path):
         SUITE,
         [TASK],
         Lower(),
-        2,
         str(tmp_path / "nudged.hdf5"),
+        episodes=2,
         init_states=[3],
         seed=4,
         max_steps=STEPS,
@@ -195,7 +195,7 @@ def test_nudged_rollouts_start_apart_and_replay_from_their_records(tmp_path):
 
 def test_rollouts_refuse_init_states_the_task_does_not_have(tmp_path):
     with pytest.raises(UserInputError, match="expected indices in 0..49"):
-        collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), init_states=[60], progress=False)
+        collect_rollouts(SUITE, [TASK], Lower(), str(tmp_path / "x.hdf5"), episodes=1, init_states=[60], progress=False)
     assert not list(tmp_path.iterdir())  # refused before any file was made
 
 
@@ -203,7 +203,9 @@ def test_only_a_bc_policy_directory_can_be_asked_to_act_by_sampling(tmp_path):
     with pytest.raises(
         UserInputError, match="policy act 'sample' applies to a BC policy directory; a Lower decides its own actions"
     ):
-        collect_rollouts(SUITE, [TASK], Lower(), 1, str(tmp_path / "x.hdf5"), policy_act="sample", progress=False)
+        collect_rollouts(
+            SUITE, [TASK], Lower(), str(tmp_path / "x.hdf5"), episodes=1, policy_act="sample", progress=False
+        )
     assert not list(tmp_path.iterdir())
 
 

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,12 +49,13 @@ from base_suites import get_task
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_workers
+from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.metrics import lifelong_metrics
 from elegant.evaluation.runner import evaluate
+from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import load_demos
 from elegant.policies.bc_features import BCFeatures
-from elegant.policies.bc_model import DEFAULT_MODES
-from elegant.policies.bc_train import BCConfig, select_tasks, snapshot_dir, train_policy
+from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir, train_policy
 from elegant.reporting.report import markdown_table, percent, save_figure
 
 
@@ -78,33 +79,22 @@ def train_stage_sequential(run: _Run, k: int) -> None:
     """SeqL: fine-tune the network kept after task k-1 on task k's demos (task 0 starts from a fresh
     network over the features of all K tasks); snapshots at the evaluation epochs."""
     cfg = run.config
-    start: dict[str, Any] = {"features": run.features} if k == 0 else {"init_from": run.kept[k - 1]}
+    start = {"features": run.features} if k == 0 else {"init_from": run.kept[k - 1]}
     train_policy(
         run.paths,
         run.stage_dir(k),
-        epochs=cfg["epochs"],
-        seed=cfg["seed"],
-        modes=cfg["modes"],
+        BCConfig(epochs=cfg["epochs"], seed=cfg["seed"], modes=cfg["modes"]),
+        fine_tuning=FineTuning(tasks=[cfg["task_keys"][k]], snapshot_epochs=cfg["eval_epochs"], **start),
         resume=True,
         progress=False,
-        tasks=[cfg["task_keys"][k]],
-        snapshot_epochs=cfg["eval_epochs"],
         on_epoch_end=lambda info: run.status(
             f"{cfg['task_keys'][k]}: epoch {info['epoch']}/{cfg['epochs']}, nll {info['nll']:.3f}"
         ),
-        **start,
     )
 
 
 # How each algorithm trains stage k into `run.stage_dir(k)`; another lifelong algorithm slots in here.
 STAGE_TRAINERS: dict[str, Callable[[_Run, int], None]] = {"sequential": train_stage_sequential}
-
-
-def _positive(**values: Any) -> None:
-    """Refuse a non-positive count before any work starts (training comes before the first evaluation)."""
-    for name, value in values.items():
-        if int(value) != value or value < 1:
-            raise UserInputError(f"lifelong: {name} must be a positive integer, got {value!r}")
 
 
 def _task_indices(suite: str, tasks: Sequence[int | str]) -> list[int]:
@@ -148,14 +138,14 @@ def _evaluate(run: _Run, policy: str, tasks: list[int], run_dir: Path) -> dict[s
         tasks,
         policy,
         None,
-        mode="base",
-        episodes=cfg["episodes"],
-        seed=cfg["seed"],
         out=run_dir,
         resume=True,
         progress=False,
-        max_steps=cfg["max_steps"],
         workers=run.workers,
+        mode="base",
+        episodes=cfg["episodes"],
+        seed=cfg["seed"],
+        max_steps=cfg["max_steps"],
     )
 
 
@@ -196,40 +186,30 @@ def run_lifelong(
     tasks: Sequence[int | str],
     demo_paths: Sequence[str],
     out: str | os.PathLike,
+    config: LifelongConfig | None = None,
     *,
-    epochs: int,
-    eval_every: int,
-    episodes: int,
-    seed: int,
-    max_steps: int | None = None,
-    modes: int = DEFAULT_MODES,
     progress: bool = True,
     resume: bool = False,
     workers: int = 1,
+    **settings: Any,
 ) -> dict[str, Any]:
     """Learn `tasks` of `suite` in order with sequential fine-tuning and measure LIBERO's lifelong metrics.
 
     `demo_paths`: demo HDF5 files (from `elegant demos`) holding the demos of every task; task k learns
-    from the demos with its task key. `epochs` per task, evaluating the current task every `eval_every`
-    epochs (`epochs` must be a multiple) and before training on it; `episodes` per evaluation, episode
-    starts from `seed`; `max_steps` caps each episode (default: the suite's horizon); `modes`: the policy's
-    mixture components (runs from before it was a setting used 5); `workers`: processes running each
-    evaluation's episodes (`elegant.evaluate`). Writes OUT as the
-    module docstring describes and returns the content of OUT/lifelong.json.
+    from the demos with its task key. The settings are `config`'s (default: `LifelongConfig`'s), with
+    keyword `settings` naming its fields overriding it: epochs per task, evaluating the current task every
+    `eval_every` epochs and before training on it, episodes per evaluation, seed, max_steps, the policy's
+    mixture components. `workers`: processes running each evaluation's episodes (`elegant.evaluate`).
+    Writes OUT as the module docstring describes and returns the content of OUT/lifelong.json.
     """
-    _positive(
-        epochs=epochs,
-        eval_every=eval_every,
-        episodes=episodes,
-        modes=modes,
-        **({} if max_steps is None else {"max_steps": max_steps}),
-    )
+    names = {f.name for f in fields(LifelongConfig)}
+    unknown = sorted(set(settings) - names)
+    if unknown:
+        raise UserInputError(f"lifelong: unknown settings {unknown}; expected some of: {', '.join(sorted(names))}")
+    cfg = replace(config or LifelongConfig(), **settings)
+    epochs, eval_every, episodes, seed = cfg.epochs, cfg.eval_every, cfg.episodes, cfg.seed
+    max_steps, modes = cfg.max_steps, cfg.modes
     workers = check_workers(workers)
-    if epochs % eval_every:
-        raise UserInputError(
-            f"lifelong: epochs ({epochs}) must be a multiple of eval_every ({eval_every}), "
-            "so that the last epoch is evaluated like LIBERO's 50 epochs every 5"
-        )
     indices = _task_indices(suite, tasks)
     keys = [task_key(suite, i) for i in indices]
     if isinstance(demo_paths, (str, os.PathLike)) or not demo_paths:

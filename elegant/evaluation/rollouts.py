@@ -33,8 +33,8 @@ from annotations.collect import collect_episodes
 from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
-from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.seeds import derive_seed
+from elegant.evaluation.config import RolloutConfig
 from elegant.evaluation.runner import check_init_states, episode_start, open_policy
 from elegant.intervention.jiti import JITI
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
@@ -89,19 +89,12 @@ class _PolicySource:
         return {"policy": self.policy_name, "rollout": self.agent.config(), "explored_steps": explored}
 
 
-def _policy_source(
-    policy: Any,
-    agent_settings: Mapping[str, Any],
-    suite: str,
-    seed: int,
-    init_states: Sequence[int] | None,
-    policy_name: str,
-    explore_at: Sequence[int] | None,
-    policy_act: str,
-) -> _PolicySource:
+def _policy_source(policy: Any, config: RolloutConfig, suite: str, policy_name: str) -> _PolicySource:
     """The rollouts' actor, built from picklable inputs (a worker process builds its own)."""
-    agent = JITI(open_policy(policy, policy_act), None, seed=seed, **agent_settings)
-    return _PolicySource(agent, suite, seed, init_states, policy_name, explore_at)
+    agent = JITI(open_policy(policy, config.policy_act), None, config.jiti(), seed=config.seed)
+    init_states = None if config.init_states is None else list(config.init_states)
+    explore_at = None if config.explore_at is None else list(config.explore_at)
+    return _PolicySource(agent, suite, config.seed, init_states, policy_name, explore_at)
 
 
 def _n_starts(spec: Any, init_states: Sequence[int] | None) -> int:
@@ -140,88 +133,58 @@ def collect_rollouts(
     suite: str,
     tasks: Sequence[int] | None,
     policy: Any,
-    episodes: int,
     out: str,
+    config: RolloutConfig | None = None,
     *,
-    explore: float = 0.0,
-    explore_at: Sequence[int] | None = None,
-    trust_radius: float | None = 0.3,
-    n_candidates: int = 16,
-    init_states: Sequence[int] | None = None,
-    seed: int = 0,
-    max_steps: int | None = None,
-    perturbation: str | None = None,
     resume: bool = False,
     progress: bool = True,
     workers: int = 1,
-    policy_act: str = DEFAULT_POLICY_ACT,
+    **settings: Any,
 ) -> dict[str, Any]:
-    """Roll `policy` (a directory or a callable, acting as `policy_act` says: see `elegant.evaluate`) out `episodes`
-    times per task of `suite` (None: every task of it)
-    and write the episodes to `out` (demo layout, atomic, resumable with the same settings). `explore`:
-    the fraction of the policy's decisions replaced by a random candidate within `trust_radius` (0: the
-    policy as it is; more episodes than `init_states` then repeat episodes exactly). `perturbation`: as in
-    `elegant eval`; "init@nudge" moves the task objects up to 2 cm, giving starts beyond the shipped ones
-    (with `explore_at`, a start's branches share its nudge). `workers`: processes recording episodes side
-    by side; the file does not depend on it.
+    """Roll `policy` (a directory or a callable) out on every task of `tasks` of `suite` (None: all of it)
+    and write the episodes to `out` (demo layout, atomic, resumable with the same settings).
+
+    The settings are `config`'s (default: `RolloutConfig`'s defaults), with keyword `settings` naming its
+    fields overriding it; see each field's help. Without exploration, more episodes than starts repeat
+    episodes exactly. `workers`: processes recording episodes side by side; the file does not depend on it.
 
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
+    cfg = (config or RolloutConfig()).with_settings(**settings)
     specs = task_specs(suite, tasks)
     for spec in specs:
-        check_init_states(init_states, spec.n_init_states)  # before any env or file is made
-    if explore_at is not None:
-        if explore > 0:
-            raise UserInputError("rollouts: give --explore (a rate) or --explore-at (decision steps), not both")
-        if not explore_at or min(explore_at) < 0:
-            raise UserInputError(f"rollouts: --explore-at needs decision steps >= 0, got {list(explore_at)}")
-        explore_at = [int(t) for t in explore_at]
-        _warn_unreached_points(explore_at, episodes, [_n_starts(spec, init_states) for spec in specs])
-    agent_settings = {
-        "mode": "random" if explore > 0 or explore_at is not None else "base",
-        "random_rate": explore,
-        "trust_radius": trust_radius,
-        "n_candidates": n_candidates,
-    }
+        check_init_states(cfg.init_states, spec.n_init_states)  # before any env or file is made
+    if cfg.explore_at is not None:
+        _warn_unreached_points(cfg.explore_at, cfg.episodes, [_n_starts(spec, cfg.init_states) for spec in specs])
     name = policy if isinstance(policy, str) else type(policy).__name__
-    make_source = partial(
-        _policy_source,
-        policy,
-        agent_settings,
-        suite,
-        seed,
-        None if init_states is None else list(init_states),
-        name,
-        explore_at,
-        policy_act,
-    )
+    make_source = partial(_policy_source, policy, cfg, suite, name)
     source = make_source()  # here for the settings it records, and to refuse a bad policy before any env is built
-    settings = {
+    recorded = {
         "policy": name,
         "rollout": source.agent.config(),
         "init_states": source.init_states,
-        "max_steps": max_steps,
+        "max_steps": cfg.max_steps,
     }
-    if explore_at is not None:  # only then: files collected before it existed still resume
-        settings["explore_at"] = explore_at
-        settings["branches_share_reset_seed"] = True
-    if perturbation:  # likewise
-        settings["perturbation"] = perturbation
-    if policy_act != DEFAULT_POLICY_ACT:  # likewise
-        settings["policy_act"] = policy_act
+    if cfg.explore_at is not None:  # only then: files collected before it existed still resume
+        recorded["explore_at"] = list(cfg.explore_at)
+        recorded["branches_share_reset_seed"] = True
+    if cfg.perturbation:  # likewise
+        recorded["perturbation"] = cfg.perturbation
+    if cfg.policy_act != DEFAULT_POLICY_ACT:  # likewise
+        recorded["policy_act"] = cfg.policy_act
     path = collect_episodes(
         suite,
         tasks,
-        episodes,
+        cfg.episodes,
         out,
         (lambda: source) if workers == 1 else make_source,
-        seed=seed,
+        seed=cfg.seed,
         resume=resume,
         progress=progress,
         desc="rollouts",
-        horizon=lambda spec: max_steps or spec.default_max_steps,
-        settings=settings,
-        perturbation=perturbation,
+        horizon=lambda spec: cfg.max_steps or spec.default_max_steps,
+        settings=recorded,
+        perturbation=cfg.perturbation,
         workers=workers,
     )
     with DemoFile(path) as f:

@@ -34,9 +34,9 @@ from base_suites import UserInputError, make_env, task_specs
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
 from base_suites.runtime.seeds import derive_seed
+from elegant.evaluation.config import EvalConfig
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import summarize
-from elegant.intervention.config import JITIConfig
 from elegant.intervention.jiti import JITI
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
 from elegant.reporting.report import write_run_report
@@ -109,14 +109,10 @@ def open_critic(critic: Any) -> Any:
     return critic
 
 
-def build_agent(
-    policy: Any, critic: Any, mode: str, seed: int, settings: Mapping[str, Any], policy_act: str = DEFAULT_POLICY_ACT
-) -> JITI:
-    """The evaluated agent: `policy` (acting as `policy_act` says) and `critic` opened (directories or
-    objects) and wrapped in JITI."""
-    return JITI(
-        open_policy(policy, policy_act), open_critic(critic), JITIConfig.from_settings(settings, mode=mode), seed=seed
-    )
+def build_agent(policy: Any, critic: Any, config: EvalConfig) -> JITI:
+    """The evaluated agent: `policy` (acting as `config.policy_act` says) and `critic` opened (directories
+    or objects) and wrapped in JITI with `config.jiti`, seeded by the run's seed."""
+    return JITI(open_policy(policy, config.policy_act), open_critic(critic), config.jiti, seed=config.seed)
 
 
 def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
@@ -190,111 +186,93 @@ def evaluate(
     tasks: Sequence[int | str] | None,
     policy: Any,
     critic: Any = None,
-    mode: str = "jiti",
-    episodes: int = 10,
-    seed: int = 0,
+    config: EvalConfig | None = None,
+    *,
     out: str | os.PathLike = "runs/eval",
     resume: bool = False,
-    perturbation: str | None = None,
-    jiti_kwargs: Mapping[str, Any] | None = None,
-    progress: bool = True,
-    *,
-    max_steps: int | None = None,
-    obs: str = "lowdim",
-    init_states: Sequence[int] | None = None,
-    gate: str | os.PathLike | None = None,
     workers: int = 1,
-    policy_act: str = DEFAULT_POLICY_ACT,
+    progress: bool = True,
+    **settings: Any,
 ) -> dict[str, Any]:
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
-    object, or None for modes "base" and "random") on `tasks` of `suite` (None: all), `episodes` per
-    task, starting from `init_states` only (None: all shipped init states; see `episode_start`). `gate`:
-    a file from `elegant gate` (`elegant.intervention.gate`) naming the mode each task runs in (base, jiti or always).
-    `workers`: processes running episodes side by side (`base_suites.runtime.jobs`); the numbers do not
-    depend on it, and with more than one the policy and critic must be directories or picklable.
-    `policy_act`: how a BC policy directory acts, one of POLICY_ACTS (`elegant.policies.bc_policy`
-    explains each).
+    object, or None for modes "base" and "random") on `tasks` of `suite` (None: all).
+
+    The run's settings are `config`'s (default: `EvalConfig`'s defaults), with keyword `settings` naming
+    `EvalConfig` or `JITIConfig` fields overriding it (`evaluate(..., mode="base", episodes=50)`); see
+    each field's help. `workers`: processes running episodes side by side (`base_suites.runtime.jobs`);
+    the numbers do not depend on it, and with more than one the policy and critic must be directories or
+    picklable.
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,
     overrides_per_episode, steps_per_episode, decision_time, env_step_time, decision_overhead, per_task.
     """
-    if int(episodes) < 1:
-        raise UserInputError(f"episodes must be >= 1, got {episodes}")
-    settings = dict(jiti_kwargs or {})
-    JITIConfig.from_settings(settings, mode=mode)  # refuses unknown or bad settings before anything is made
-    if critic is not None and obs == "rgb":
+    cfg = (config or EvalConfig()).with_settings(**settings)
+    if critic is not None and cfg.obs == "rgb":
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
     specs = task_specs(suite, tasks)
     for spec in specs:
-        check_init_states(init_states, spec.n_init_states)
+        check_init_states(cfg.init_states, spec.n_init_states)
     indices = list(dict.fromkeys(spec.index for spec in specs))
-    if gate is not None and mode != "jiti":
-        raise UserInputError(f"--gate chooses per task how JITI runs; mode {mode!r} has none to choose")
     workers = check_workers(workers)
     if workers > 1:
         check_picklable((policy, critic), "the policy or the critic")
-    agent = build_agent(policy, critic, mode, seed, settings, policy_act)
-    chosen = None if init_states is None else sorted({int(i) for i in init_states})
+    agent = build_agent(policy, critic, cfg)
+    chosen = None if cfg.init_states is None else sorted({int(i) for i in cfg.init_states})
     described = {
         "policy": _describe(policy),
-        "policy_act": policy_act,
+        "policy_act": cfg.policy_act,
         "critic": _describe(critic),
         "jiti": {k: v for k, v in agent.config().items() if k != "mode"},
     }
     task_modes = None
-    if gate is not None:
+    if cfg.gate is not None:
         from elegant.intervention.gate import read_gate
 
-        task_modes = read_gate(gate, suite, [task_key(suite, i) for i in indices], chosen, described)
-    config = {
+        task_modes = read_gate(cfg.gate, suite, [task_key(suite, i) for i in indices], chosen, described)
+    record = {
         "suite": suite,
         "tasks": indices,
         **described,
-        "mode": mode,
-        "episodes": int(episodes),
-        "seed": int(seed),
-        "perturbation": perturbation,
-        "max_steps": max_steps,
-        "obs": obs,
+        "mode": cfg.mode,
+        "episodes": int(cfg.episodes),
+        "seed": int(cfg.seed),
+        "perturbation": cfg.perturbation,
+        "max_steps": cfg.max_steps,
+        "obs": cfg.obs,
         "init_states": chosen,
-        **({} if task_modes is None else {"gate": {"file": os.path.abspath(gate), "modes": task_modes}}),
+        **({} if task_modes is None else {"gate": {"file": os.path.abspath(cfg.gate), "modes": task_modes}}),
     }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    _prepare_run_dir(out, config, resume)
+    _prepare_run_dir(out, record, resume)
     log = EpisodeLog(out / "episodes.jsonl")
     done = log.done()
     jobs = [
-        EvalJob(index, e, mode if task_modes is None else task_modes[task_key(suite, index)])
+        EvalJob(index, e, cfg.mode if task_modes is None else task_modes[task_key(suite, index)])
         for index in indices
-        for e in range(int(episodes))
+        for e in range(int(cfg.episodes))
         if (task_key(suite, index), e) not in done
     ]
     # the agent built here serves a serial run; worker processes each build their own from the same inputs
     make_worker = partial(
         EpisodeRunner,
-        agent if workers == 1 else partial(build_agent, policy, critic, mode, seed, settings, policy_act),
-        config,
+        agent if workers == 1 else partial(build_agent, policy, critic, cfg),
+        record,
         str(out),
     )
-    with tqdm(
-        total=len(indices) * int(episodes),
-        initial=len(indices) * int(episodes) - len(jobs),
-        desc=f"eval {mode}",
-        unit="ep",
-        disable=not progress,
-    ) as bar:
+    total = len(indices) * int(cfg.episodes)
+    with tqdm(total=total, initial=total - len(jobs), desc=f"eval {cfg.mode}", unit="ep", disable=not progress) as bar:
         with run_jobs(make_worker, jobs, workers) as results:
-            for _, record in results:
-                log.append(record)
+            for _, episode in results:
+                log.append(episode)
                 bar.update(1)
                 bar.set_postfix(
                     success=f"{np.mean([r['success'] for r in log.records]):.2f}",
                     esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}",
                 )
-    records = run_records(log.records, config)
-    summary = {"config": config, **summarize(records)}
+    records = run_records(log.records, record)
+    summary = {"config": record, **summarize(records)}
     atomic_write(out / "summary.json", json.dumps(summary, indent=2))
     write_run_report(out, summary, records)
     return summary

@@ -7,10 +7,11 @@ record `JITIConfig.record()`. A mode is a preset of a trigger (when to draw and 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any, Literal, get_args
 
 from base_suites.runtime.errors import UserInputError, unknown_choice
+from base_suites.runtime.settings import setting
 
 Mode = Literal["jiti", "always", "base", "random"]
 ThresholdMode = Literal["absolute", "std"]
@@ -25,11 +26,6 @@ DEFAULT_THRESHOLD = 1.0
 DEFAULT_NOISE_SCALE = 0.1
 
 
-def _setting(default: Any, help: str, flag: str | None = None) -> Any:
-    """A field with the one-line help the CLI shows; `flag` names its option where the name differs."""
-    return field(default=default, metadata={"help": help, "flag": flag})
-
-
 @dataclass(frozen=True)
 class JITIConfig:
     """How JITI decides. `mode`: "jiti" (re-rank at critical moments), "always" (at every decision: the
@@ -37,28 +33,28 @@ class JITIConfig:
     candidate at a `random_rate` of decisions, or at `random_steps`: the control, and the exploration of
     recorded rollouts)."""
 
-    mode: Mode = _setting("jiti", "jiti: re-rank at critical moments; always: at every decision; base: never")
-    window: int = _setting(10, "JITI's window: the number of past decisions whose scores set the reference m_t")
-    threshold: float = _setting(DEFAULT_THRESHOLD, "tau: how far q_t may stray from m_t before JITI intervenes")
-    threshold_mode: ThresholdMode = _setting("absolute", "tau in Q units (absolute) or in the window's std (std)")
-    trigger: TriggerName = _setting(
+    mode: Mode = setting("jiti", "jiti: re-rank at critical moments; always: at every decision; base: never")
+    window: int = setting(10, "JITI's window: the number of past decisions whose scores set the reference m_t")
+    threshold: float = setting(DEFAULT_THRESHOLD, "tau: how far q_t may stray from m_t before JITI intervenes")
+    threshold_mode: ThresholdMode = setting("absolute", "tau in Q units (absolute) or in the window's std (std)")
+    trigger: TriggerName = setting(
         "deviation", "mode jiti's critical moment: |q - m| > tau (deviation), m - q > tau (drop) or none"
     )
-    warmup: Warmup = _setting(
+    warmup: Warmup = setting(
         "base", "what mode jiti's first --window decisions execute: the base plan (base) or the critic's choice (steer)"
     )
-    n_candidates: int = _setting(
+    n_candidates: int = setting(
         16, "candidates drawn from the policy per re-ranked decision, the base plan one of them", flag="--candidates"
     )
-    noise_scale: float = _setting(
+    noise_scale: float = setting(
         DEFAULT_NOISE_SCALE, "std of the Gaussian candidates around a policy's action when it cannot sample its own"
     )
-    trust_radius: float | None = _setting(
+    trust_radius: float | None = setting(
         None, "only candidates within this distance of the base plan may be chosen (default: no limit)"
     )
-    min_gain: float = _setting(0.0, "a candidate must beat the base plan's score by more than this to replace it")
-    max_overrides: int | None = _setting(None, "mode jiti stops overriding after this many per episode (default: none)")
-    random_rate: float = _setting(0.1, "mode random: the fraction of decisions given a random eligible candidate")
+    min_gain: float = setting(0.0, "a candidate must beat the base plan's score by more than this to replace it")
+    max_overrides: int | None = setting(None, "mode jiti stops overriding after this many per episode (default: none)")
+    random_rate: float = setting(0.1, "mode random: the fraction of decisions given a random eligible candidate")
 
     def __post_init__(self) -> None:
         self.validate()

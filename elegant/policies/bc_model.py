@@ -14,13 +14,10 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
+from elegant.policies.bc_config import DEFAULT_MODES
 from elegant.policies.protocol import ACTION_DIM
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
-# Mixture components. LIBERO's GMM baselines use 5; here 16 did far better on libero_object/0 (20
-# episodes each): 50 mixed demos 15% -> 45% success, 110 demos 30% -> 75%, and a chunk of 4 actions
-# 5% -> 70% (a joint chunk needs a component per timing of the gripper's close, or it blends them).
-DEFAULT_MODES = 16
 
 
 class GMMHead(nn.Module):

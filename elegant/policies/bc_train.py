@@ -21,7 +21,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Collection, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -31,53 +31,14 @@ from tqdm import tqdm
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
+from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
-from elegant.policies.bc_model import DEFAULT_MODES, BCNet
+from elegant.policies.bc_model import BCNet
 from elegant.policies.protocol import ACTION_DIM
 
 CHECKPOINT_FILE = "checkpoint.pt"
 Init = tuple[BCNet, BCFeatures, dict[str, Any]]  # what read_artifact returns for `init_from`
-
-
-@dataclass(frozen=True)
-class BCConfig:
-    """Hyper-parameters of one training run (compared field by field when resuming)."""
-
-    epochs: int
-    seed: int = 0
-    history: int = 10
-    batch_size: int = 256
-    lr: float = 1e-3
-    weight_decay: float = 0.0
-    hidden: tuple[int, ...] = (256, 256)
-    modes: int = DEFAULT_MODES
-    min_std: float = 1e-4
-    obs_min_std: float = 1e-2
-    grad_clip: float = 100.0
-    chunk: int = 1
-    task_film: bool = True
-    obs_noise: float = 0.0
-
-    def validate(self) -> None:
-        positive = {
-            "epochs": self.epochs,
-            "history": self.history,
-            "batch_size": self.batch_size,
-            "modes": self.modes,
-            "chunk": self.chunk,
-        }
-        for name, value in positive.items():
-            if int(value) != value or value < 1:
-                raise UserInputError(f"train_policy: {name} must be a positive integer, got {value!r}")
-        if not self.hidden or any(int(h) != h or h < 1 for h in self.hidden):
-            raise UserInputError(f"train_policy: hidden must be positive layer widths, got {self.hidden!r}")
-        for name in ("lr", "weight_decay", "grad_clip", "obs_noise"):
-            if not getattr(self, name) >= 0:
-                raise UserInputError(f"train_policy: {name} must be >= 0, got {getattr(self, name)!r}")
-        for name in ("min_std", "obs_min_std"):
-            if not getattr(self, name) > 0:
-                raise UserInputError(f"train_policy: {name} must be > 0, got {getattr(self, name)!r}")
 
 
 class _Windows:
@@ -205,69 +166,57 @@ def _digest(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()
 
 
+@dataclass(frozen=True)
+class FineTuning:
+    """What a training run starts from and publishes beyond the plain case (LIBERO's lifelong stages).
+
+    `tasks` (task keys) trains on those tasks' demos only; `features` fixes the model input instead of
+    fitting it on the data (e.g. fitted over more tasks than this run trains on); `init_from` starts from
+    a policy directory's weights and features instead of a fresh network (not with `features`);
+    `snapshot_epochs` also publishes the policy as of these epochs (0: before training) in
+    `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
+    resumed checkpoint must match."""
+
+    tasks: Sequence[str] | None = None
+    features: BCFeatures | None = None
+    init_from: str | None = None
+    snapshot_epochs: Collection[int] = ()
+
+
 def train_policy(
     paths: Sequence[str],
     out: str,
+    config: BCConfig | None = None,
     *,
-    epochs: int,
-    seed: int = 0,
+    successful_only: bool = False,
+    fine_tuning: FineTuning | None = None,
     resume: bool = False,
-    history: int = 10,
-    batch_size: int = 256,
-    lr: float = 1e-3,
-    weight_decay: float = 0.0,
-    hidden: Sequence[int] = (256, 256),
-    modes: int = DEFAULT_MODES,
-    min_std: float = 1e-4,
-    obs_min_std: float = 1e-2,
-    grad_clip: float = 100.0,
-    chunk: int = 1,
-    task_film: bool = True,
-    obs_noise: float = 0.0,
     progress: bool = True,
     on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
-    tasks: Sequence[str] | None = None,
-    features: BCFeatures | None = None,
-    init_from: str | None = None,
-    snapshot_epochs: Collection[int] = (),
-    successful_only: bool = False,
+    **settings: Any,
 ) -> dict[str, Any]:
     """Train a BC-GMM policy on the demos in `paths` and write it to the directory `out`.
 
-    `chunk` > 1 trains the policy to predict that many future actions at once (one GMM over the flattened
-    chunk) and to execute them open-loop, as the action chunks of VLA policies: a sample of the mixture is
-    then a coherent sub-trajectory, which is what JITI chooses among (see `BCPolicy`).
+    The hyper-parameters are `config`'s (default: `BCConfig`'s defaults), with keyword `settings` naming
+    `BCConfig` fields overriding it. `chunk` > 1 trains the policy to predict that many future actions at
+    once (one GMM over the flattened chunk) and to execute them open-loop, as the action chunks of VLA
+    policies: a sample of the mixture is then a coherent sub-trajectory, which is what JITI chooses among
+    (see `BCPolicy`). `successful_only`: train on the successful demos only (see `load_demos`); the data a
+    checkpoint records then counts only those. `fine_tuning`: see `FineTuning`.
 
     Returns a dict: out, epochs, resumed_from_epoch, loss_history (mean training NLL per epoch), final_nll,
     num_demos, num_samples, tasks, seconds. `on_epoch_end` receives {"epoch", "nll"} after each epoch's
     checkpoint is on disk (for logging; an exception raised there stops training like a crash would).
-
-    Fine-tuning: `tasks` (task keys) trains on those tasks' demos only; `features` fixes the model input
-    instead of fitting it on the data (e.g. fitted over more tasks than this run trains on); `init_from`
-    starts from a policy directory's weights and features instead of a fresh network (not with
-    `features`); `snapshot_epochs` also publishes the policy as of these epochs (0: before training) in
-    `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
-    resumed checkpoint must match. `successful_only`: train on the successful demos only (see
-    `load_demos`); the data a checkpoint records then counts only those. `task_film`: the task one-hot
-    also modulates every hidden layer (see `BCNet`); off, it enters at the input only. `obs_noise`: the
-    std, in normalised units, of Gaussian noise added to the input states during training (see `_Windows`).
     """
-    cfg = BCConfig(
-        epochs,
-        seed,
-        history,
-        batch_size,
-        lr,
-        weight_decay,
-        tuple(hidden),
-        modes,
-        min_std,
-        obs_min_std,
-        grad_clip,
-        chunk,
-        task_film,
-        obs_noise,
-    )
+    names = {f.name for f in fields(BCConfig)}
+    unknown = sorted(set(settings) - names)
+    if unknown:
+        raise UserInputError(f"train_policy: unknown settings {unknown}; expected some of: {', '.join(sorted(names))}")
+    if "hidden" in settings:
+        settings["hidden"] = tuple(settings["hidden"])
+    cfg = replace(config or BCConfig(), **settings)
+    tune = fine_tuning or FineTuning()
+    tasks, features, init_from, snapshot_epochs = tune.tasks, tune.features, tune.init_from, tune.snapshot_epochs
     cfg.validate()
     snapshots = set(snapshot_epochs)
     if any(int(e) != e or not 0 <= e <= cfg.epochs for e in snapshots):

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Mapping
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Literal, Protocol, get_args, runtime_checkable
 
 import numpy as np
 
@@ -20,11 +20,9 @@ from base_suites.runtime.errors import UserInputError
 ACTION_DIM = 7
 ACTION_LOW = -1.0
 ACTION_HIGH = 1.0
-POLICY_ACTS = (
-    "mode",
-    "sample",
-    "component",
-)  # how a BC policy acts: its mixture's most likely mean, a draw, a drawn component's mean (elegant.policies.bc_policy)
+# how a BC policy acts: its mixture's most likely mean, a draw, a drawn component's mean (elegant.policies.bc_policy)
+PolicyAct = Literal["mode", "sample", "component"]
+POLICY_ACTS: tuple[str, ...] = get_args(PolicyAct)
 DEFAULT_POLICY_ACT = "mode"  # also what runs, gates and chains recorded before the act was a setting
 
 Observation = Mapping[str, np.ndarray]

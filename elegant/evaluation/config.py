@@ -1,0 +1,174 @@
+"""An evaluation run's settings: one frozen dataclass whose fields are also `elegant eval`'s options, with
+JITI's own settings nested as a `JITIConfig` (docs/design.md, configuration)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+from base_suites.env import ObsMode
+from base_suites.runtime.errors import UserInputError, unknown_choice
+from base_suites.runtime.settings import index_list, setting
+from elegant.intervention.config import JITIConfig
+from elegant.policies.bc_config import DEFAULT_MODES
+from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, PolicyAct
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What an evaluation run is, besides the suite, tasks, policy and critic it evaluates."""
+
+    episodes: int = setting(10, "episodes per task")
+    seed: int = setting(0, "the run's seed: each episode's start and reset seed derive from it")
+    perturbation: str | None = setting(None, "LIBERO-PRO perturbations, e.g. init:3,language")
+    max_steps: int | None = setting(None, "episode horizon (default: the suite's)")
+    obs: ObsMode = setting("lowdim", "what the policy observes: lowdim (state), rgb (image) or both")
+    init_states: tuple[int, ...] | None = setting(
+        None, "start only from these shipped init states, e.g. 25-49 (default: all)", parse=index_list
+    )
+    policy_act: PolicyAct = setting(
+        DEFAULT_POLICY_ACT,
+        "how the BC policy acts: its mixture's most likely mean (mode, deterministic), a draw from the mixture "
+        "at every decision (sample, as LIBERO runs its BC policies) or the mean of a drawn component (component, "
+        "LIBERO's low_eval_noise)",
+    )
+    gate: str | None = setting(
+        None, "mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)"
+    )
+    jiti: JITIConfig = field(default_factory=JITIConfig)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Refuse a setting that is out of range or meaningless, with one line naming it."""
+        if not int(self.episodes) >= 1:
+            raise UserInputError(f"episodes must be >= 1, got {self.episodes}")
+        if not int(self.seed) >= 0:
+            raise UserInputError(f"seed must be >= 0, got {self.seed}")
+        if self.max_steps is not None and not int(self.max_steps) >= 1:
+            raise UserInputError(f"max_steps must be >= 1 (or None for the suite's horizon), got {self.max_steps}")
+        if self.policy_act not in POLICY_ACTS:
+            raise unknown_choice("policy act", self.policy_act, POLICY_ACTS)
+        if self.gate is not None and self.jiti.mode != "jiti":
+            raise UserInputError(f"--gate chooses per task how JITI runs; mode {self.jiti.mode!r} has none to choose")
+
+    @property
+    def mode(self) -> str:
+        return self.jiti.mode
+
+    def with_settings(self, **settings: Any) -> EvalConfig:
+        """This config with `settings` replaced: names of `EvalConfig` fields or of `JITIConfig` fields
+        (mode, window, ...); any other name is refused in one line listing both."""
+        own = {f.name for f in fields(EvalConfig)} - {"jiti"}
+        jiti_names = set(JITIConfig.settings())
+        unknown = sorted(set(settings) - own - jiti_names)
+        if unknown:
+            raise UserInputError(
+                f"evaluation settings {unknown} unknown; expected some of: {', '.join(sorted(own | jiti_names))}"
+            )
+        jiti = {k: v for k, v in settings.items() if k in jiti_names}
+        mine = {k: v for k, v in settings.items() if k in own}
+        if mine.get("init_states") is not None:
+            mine["init_states"] = tuple(int(i) for i in mine["init_states"])
+        return replace(self, jiti=replace(self.jiti, **jiti) if jiti else self.jiti, **mine)
+
+
+@dataclass(frozen=True)
+class RolloutConfig:
+    """What `elegant rollouts` records: the policy's own episodes, optionally exploring the alternatives
+    JITI chooses among (a random candidate within the trust radius), for a critic to learn from."""
+
+    episodes: int = setting(50, "episodes per task")
+    explore: float = setting(0.0, "fraction of decisions given a random candidate within the trust radius")
+    explore_at: tuple[int, ...] | None = setting(
+        None,
+        "instead of --explore: decision steps, e.g. 8,24,40; each episode takes a random candidate at one "
+        "of them (starts cycle first, then the steps), so episodes from one start differ in one decision",
+        parse=index_list,
+    )
+    trust_radius: float | None = setting(0.3, "explored candidates lie within this distance of the base plan")
+    n_candidates: int = setting(16, "candidates drawn per explored decision", flag="--candidates")
+    init_states: tuple[int, ...] | None = setting(
+        None, "start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)", parse=index_list
+    )
+    seed: int = setting(0, "the run's seed: each episode's start and reset seed derive from it")
+    max_steps: int | None = setting(None, "episode horizon (default: the suite's)")
+    perturbation: str | None = setting(
+        None, "as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states"
+    )
+    policy_act: PolicyAct = setting(DEFAULT_POLICY_ACT, "how the BC policy acts (as in eval)")
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Refuse a setting that is out of range or contradicts another, with one line naming it."""
+        if not int(self.episodes) >= 1:
+            raise UserInputError(f"rollouts: episodes must be >= 1, got {self.episodes}")
+        if not 0.0 <= float(self.explore) <= 1.0:
+            raise UserInputError(f"rollouts: --explore must lie in [0, 1], got {self.explore}")
+        if self.explore_at is not None:
+            if self.explore > 0:
+                raise UserInputError("rollouts: give --explore (a rate) or --explore-at (decision steps), not both")
+            if not self.explore_at or min(self.explore_at) < 0:
+                raise UserInputError(f"rollouts: --explore-at needs decision steps >= 0, got {list(self.explore_at)}")
+        if not int(self.seed) >= 0:
+            raise UserInputError(f"rollouts: seed must be >= 0, got {self.seed}")
+        if self.max_steps is not None and not int(self.max_steps) >= 1:
+            raise UserInputError(f"rollouts: max_steps must be >= 1 (or None for the suite's), got {self.max_steps}")
+        if self.policy_act not in POLICY_ACTS:
+            raise unknown_choice("policy act", self.policy_act, POLICY_ACTS)
+
+    def jiti(self) -> JITIConfig:
+        """The recording agent's settings: mode "random" while exploring, else "base"."""
+        exploring = self.explore > 0 or self.explore_at is not None
+        return JITIConfig(
+            mode="random" if exploring else "base",
+            random_rate=self.explore,
+            trust_radius=self.trust_radius,
+            n_candidates=self.n_candidates,
+        )
+
+    def with_settings(self, **settings: Any) -> RolloutConfig:
+        """This config with `settings` (names of its fields) replaced; other names are refused in one line."""
+        names = {f.name for f in fields(RolloutConfig)}
+        unknown = sorted(set(settings) - names)
+        if unknown:
+            raise UserInputError(f"rollout settings {unknown} unknown; expected some of: {', '.join(sorted(names))}")
+        for key in ("explore_at", "init_states"):
+            if settings.get(key) is not None:
+                settings[key] = tuple(int(i) for i in settings[key])
+        return replace(self, **settings)
+
+
+@dataclass(frozen=True)
+class LifelongConfig:
+    """LIBERO's lifelong protocol as `elegant lifelong` runs it (`elegant.evaluation.lifelong`)."""
+
+    epochs: int = setting(50, "training epochs per task")
+    eval_every: int = setting(5, "evaluate the task being learned every E epochs (and before training on it)")
+    episodes: int = setting(20, "episodes per evaluation")
+    seed: int = setting(0, "training and evaluation seed")
+    max_steps: int | None = setting(None, "episode horizon (default: the suite's)")
+    modes: int = setting(DEFAULT_MODES, "components of the policy's GMM head (runs from before this option used 5)")
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Refuse a non-positive count before any work starts (training comes before the first evaluation),
+        and epochs that the evaluation points do not end on."""
+        counts = {"epochs": self.epochs, "eval_every": self.eval_every, "episodes": self.episodes, "modes": self.modes}
+        if self.max_steps is not None:
+            counts["max_steps"] = self.max_steps
+        for name, value in counts.items():
+            if int(value) != value or value < 1:
+                raise UserInputError(f"lifelong: {name} must be a positive integer, got {value!r}")
+        if not int(self.seed) >= 0:
+            raise UserInputError(f"lifelong: seed must be >= 0, got {self.seed}")
+        if self.epochs % self.eval_every:
+            raise UserInputError(
+                f"lifelong: epochs ({self.epochs}) must be a multiple of eval_every ({self.eval_every}), "
+                "so that the last epoch is evaluated like LIBERO's 50 epochs every 5"
+            )
