@@ -77,31 +77,46 @@ class EpisodeSource(Protocol):
         """Attributes to store with the finished episode (knobs, policy settings, ...)."""
 
 
+@dataclass(frozen=True)
+class Collection:
+    """Which episodes a recorded file holds and what determines them: `episodes` per task of `tasks` of
+    `suite` (None: every task), from `seed`; `horizon(spec)` is each task's episode limit; `perturbation`
+    (e.g. "init@nudge") is applied to every env; `settings` (what else determines the episodes) is stored
+    in the file's `collection` attribute, and a resumed file must match it. `desc` labels the progress bar."""
+
+    suite: str
+    tasks: Sequence[int] | None
+    episodes: int
+    seed: int
+    horizon: Callable[[Any], int]
+    settings: Mapping[str, Any]
+    perturbation: str | None = None
+    desc: str = "episodes"
+
+
 def collect_episodes(
-    suite: str,
-    tasks: Sequence[int] | None,
-    episodes: int,
+    collection: Collection,
     out: str,
     make_source: Callable[[], EpisodeSource],
     *,
-    seed: int,
-    horizon: Callable[[Any], int],
-    settings: Mapping[str, Any],
     resume: bool = False,
     progress: bool = True,
-    desc: str = "episodes",
-    perturbation: str | None = None,
     workers: int = 1,
 ) -> str:
-    """Roll the source `make_source()` builds out `episodes` times per task (None: every task of the suite)
-    and write them to `out` in the demo layout: appended to `out.partial` in episode order as they finish,
-    renamed to `out` when all are there; `resume` continues an interrupted file, only with the same
-    `settings` (what determines the episodes: stored in the file's `collection` attribute).
-    `horizon(spec)` is each task's episode limit; `perturbation` (e.g. "init@nudge") is applied to every
-    env. `workers`: processes recording episodes side by side (`base_suites.runtime.jobs`; `make_source` must
-    then be picklable); the file does not depend on it. Returns the path."""
+    """Roll the source `make_source()` builds out as `collection` says and write the episodes to `out` in
+    the demo layout: appended to `out.partial` in episode order as they finish, renamed to `out` when all
+    are there; `resume` continues an interrupted file, only with the same collection. `workers`: processes
+    recording episodes side by side (`base_suites.runtime.jobs`; `make_source` must then be picklable);
+    the file does not depend on it. Returns the path."""
     from tqdm import tqdm
 
+    suite, tasks, episodes, seed = collection.suite, collection.tasks, collection.episodes, collection.seed
+    horizon, settings, perturbation, desc = (
+        collection.horizon,
+        collection.settings,
+        collection.perturbation,
+        collection.desc,
+    )
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
     workers = check_workers(workers)
@@ -303,19 +318,17 @@ def collect_demos(
 
     knob_rates(quality)  # validate before any work
     # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
-    path = collect_episodes(
+    demos_of = Collection(
         suite,
         tasks,
         episodes,
-        out,
-        partial(_ExpertSource, quality, seed),
-        seed=seed,
-        resume=resume,
-        progress=progress,
+        seed,
         horizon=lambda spec: DEMO_HORIZON_FACTOR * spec.default_max_steps,
-        desc="demos",
         settings={"quality": quality},
-        workers=workers,
+        desc="demos",
+    )
+    path = collect_episodes(
+        demos_of, out, partial(_ExpertSource, quality, seed), resume=resume, progress=progress, workers=workers
     )
     from annotations.dataset import DemoFile
 

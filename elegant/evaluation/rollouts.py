@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from annotations.collect import collect_episodes
+from annotations.collect import Collection, collect_episodes
 from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
@@ -172,21 +172,18 @@ def collect_rollouts(
         recorded["perturbation"] = cfg.perturbation
     if cfg.policy_act != DEFAULT_POLICY_ACT:  # likewise
         recorded["policy_act"] = cfg.policy_act
-    path = collect_episodes(
+    rollouts_of = Collection(
         suite,
         tasks,
         cfg.episodes,
-        out,
-        (lambda: source) if workers == 1 else make_source,
-        seed=cfg.seed,
-        resume=resume,
-        progress=progress,
-        desc="rollouts",
+        cfg.seed,
         horizon=lambda spec: cfg.max_steps or spec.default_max_steps,
         settings=recorded,
         perturbation=cfg.perturbation,
-        workers=workers,
+        desc="rollouts",
     )
+    source_of = (lambda: source) if workers == 1 else make_source
+    path = collect_episodes(rollouts_of, out, source_of, resume=resume, progress=progress, workers=workers)
     with DemoFile(path) as f:
         demos = list(f)
     return {
