@@ -5,8 +5,8 @@ success (at least 10 points: that gap is what JITI is meant to close). The chain
 with the base mode only, so no critic is trained; its directory resumes (rerun the same command after an
 interruption). Every suite's demos train one policy, with the task as a one-hot input.
 
-    python benchmarks/policy_quality.py --out runs/policy [--suites libero_object,libero_goal] [--demos 50]
-        [--episodes 50] [--policy-epochs 50] [--tasks 0,1] [--seed 0] [--successful-only] [--obs-noise 0.1]
+    python benchmarks/policy_quality.py --out runs/policy [--recipe policy_quality] [--suites libero_object]
+        [--demos 50] [--episodes 50] [--policy-epochs 150] [--tasks 0,1] [--seed 0] [--policy-obs-noise 0.1]
 
 Prints the table per task and suite, then one JSON object on its last line.
 """
@@ -40,10 +40,10 @@ def verdicts(per_suite: dict[str, dict[str, float]]) -> dict[str, dict]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    add_chain_arguments(parser)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
+    add_chain_arguments(parser, recipe="policy_quality")
     args = parser.parse_args()
-    config = chain_config(args, modes=("base",))
+    config = chain_config(args)
     result = run_chain(args.out, config, workers=args.workers)
     suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}
     tasks = {

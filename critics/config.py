@@ -35,7 +35,7 @@ class TrainConfig:
     )
     cql_weight: float = setting(5.0, "weight of the CQL term")
     temperature: float = setting(1.0, "the CQL logsumexp's temperature")
-    calibrate: bool = setting(True, "do not clip Q(s, a~pi) from below by the Monte-Carlo return (plain CQL)")
+    calibrate: bool = setting(True, "clip Q(s, a~pi) from below by the Monte-Carlo return (Cal-QL; off: plain CQL)")
     with_lagrange: bool = setting(False, "tune the CQL weight with a Lagrange multiplier", flag="--lagrange")
     target_action_gap: float = setting(0.8, "the Lagrange target of the CQL gap (with --lagrange)")
     critic_lr: float = setting(3e-4, "the critics' learning rate")

@@ -36,7 +36,8 @@ _LAZY = {
     "write_run_report": "elegant.reporting.report",
     "quickstart": "elegant.pipeline",
     "run_chain": "elegant.pipeline",
-    "ChainConfig": "elegant.pipeline",
+    "ChainConfig": "elegant.chain_config",
+    "load_recipe": "elegant.chain_config",
 }
 
 __all__ = sorted(_LAZY)

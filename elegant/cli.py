@@ -413,18 +413,17 @@ def _report(args: argparse.Namespace) -> None:
 
 
 def _quickstart_args(p: argparse.ArgumentParser) -> None:
-    from elegant.pipeline import QUICKSTART
-
-    p.add_argument("--out", default="runs/quickstart")
-    p.add_argument("--suite", default=QUICKSTART.suites[0])
-    p.add_argument("--task", type=int, default=QUICKSTART.tasks[0])
-    p.add_argument("--demos", type=int, default=QUICKSTART.demos)
-    p.add_argument("--critic-steps", type=int, default=QUICKSTART.critic_steps)
-    p.add_argument("--policy-epochs", type=int, default=QUICKSTART.policy_epochs)
-    p.add_argument("--episodes", type=int, default=QUICKSTART.episodes)
-    p.add_argument("--seed", type=int, default=QUICKSTART.seed)
     from base_suites.runtime.jobs import available_cores
 
+    p.add_argument("--out", default="runs/quickstart")
+    p.add_argument(
+        "--recipe",
+        default="quickstart",
+        help="a chain recipe: a name under configs/ or a YAML file (default: quickstart)",
+    )
+    p.add_argument("--suite", help="run the recipe on this suite instead")
+    p.add_argument("--task", type=int, help="run the recipe on this task index instead")
+    p.add_argument("--seed", type=int, help="every stage's seed (default: the recipe's)")
     _workers_arg(p, default=available_cores())
 
 
@@ -434,19 +433,17 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     "eval base and JITI -> report",
 )(_quickstart_args)
 def _quickstart(args: argparse.Namespace) -> dict:
+    from base_suites.runtime.settings import with_overrides
+    from elegant.chain_config import load_recipe
     from elegant.pipeline import quickstart
 
-    result = quickstart(
-        args.out,
-        suites=(args.suite,),
-        tasks=(args.task,),
-        demos=args.demos,
-        critic_steps=args.critic_steps,
-        policy_epochs=args.policy_epochs,
-        episodes=args.episodes,
-        seed=args.seed,
-        workers=args.workers,
-    )
+    changes = {
+        "suites": args.suite and (args.suite,),
+        "tasks": None if args.task is None else (args.task,),
+        "seed": args.seed,
+    }
+    recipe = with_overrides(load_recipe(args.recipe), {k: v for k, v in changes.items() if v is not None})
+    result = quickstart(args.out, recipe, workers=args.workers)
     # one suite and one task: the per-suite and per-task rows repeat the pooled numbers
     return {k: v for k, v in result.items() if k not in ("per_suite", "per_task")}
 
@@ -457,7 +454,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (help_text, add_arguments, run) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text, allow_abbrev=False)
         add_arguments(p)
         p.set_defaults(run=run)
     return parser

@@ -8,14 +8,39 @@ from dataclasses import replace
 import pytest
 
 from base_suites import UserInputError
+from base_suites.runtime.settings import with_overrides
+from critics.config import TrainConfig
+from elegant.chain_config import ChainConfig
 from elegant.diagnostics.branch_ranking import branch_ranking
+from elegant.evaluation.config import EvalConfig
 from elegant.evaluation.runner import open_critic, open_policy
-from elegant.pipeline import ChainConfig, run_chain
+from elegant.intervention.config import JITIConfig
+from elegant.pipeline import run_chain
 from elegant.policies import as_policy
+from elegant.policies.bc_config import BCConfig
 
 pytestmark = pytest.mark.sim
 
-TINY = ChainConfig(demos=2, critic_steps=20, policy_epochs=1, episodes=1, max_steps=15)
+TINY = ChainConfig(
+    suites=("libero_object",),
+    tasks=(0,),
+    demos=2,
+    successful_only=False,
+    policy=BCConfig(epochs=1),
+    critic_rollouts=0,
+    critic=TrainConfig(steps=20, gamma=0.9, cql_weight=0.2, reward="segment"),
+    critic_members=1,
+    modes=("base", "jiti"),
+    evaluation=EvalConfig(
+        episodes=1, max_steps=15, jiti=JITIConfig(trust_radius=0.3, threshold=2.0, threshold_mode="std")
+    ),
+    jiti_gate=False,
+)
+
+
+def tiny(**changes) -> ChainConfig:
+    """TINY with `changes`, nested like the config ({"critic": {"steps": 3}})."""
+    return with_overrides(TINY, changes)
 
 
 def copy_data_and_policy(source: str, target) -> None:
@@ -48,7 +73,9 @@ def test_chain_runs_every_step_and_reports_the_eval_numbers(chain):
             assert result[mode][key] == pytest.approx(summary[key])
             assert result["per_suite"]["libero_object"][mode][key] == pytest.approx(summary[key])
     jiti = json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))
-    assert jiti["jiti"]["trust_radius"] == TINY.trust_radius
+    assert jiti["jiti"]["trust_radius"] == TINY.evaluation.jiti.trust_radius
+    chain_json = json.load(open(os.path.join(out, "chain.json")))
+    assert chain_json["format"] == "libero-elegant-chain/2" and chain_json["settings"]["critic"]["steps"] == 20
 
 
 def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
@@ -58,21 +85,25 @@ def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
     again = run_chain(out, TINY, progress=False)
     assert os.path.getmtime(critic) == before
     assert {m: again[m] for m in ("base", "jiti")} == {m: result[m] for m in ("base", "jiti")}
-    with pytest.raises(UserInputError, match="other settings \\(demos\\)"):
-        run_chain(out, ChainConfig(demos=3, critic_steps=20, policy_epochs=1, episodes=1, max_steps=15), progress=False)
+    with pytest.raises(UserInputError, match="other settings \\(critic.steps, demos\\)"):
+        run_chain(out, tiny(demos=3, critic={"steps": 21}), progress=False)
     with pytest.raises(UserInputError, match="chain modes"):
-        run_chain(out, ChainConfig(modes=("sometimes",)), progress=False)
-    with pytest.raises(UserInputError, match="policy_obs_noise must be >= 0"):
-        run_chain(out, replace(TINY, policy_obs_noise=-0.1), progress=False)
-    with pytest.raises(UserInputError, match="unknown chain policy_act 'mean'; expected one of: mode, sample"):
-        run_chain(out, replace(TINY, policy_act="mean"), progress=False)
+        run_chain(out, tiny(modes=("sometimes",)), progress=False)
+    with pytest.raises(UserInputError, match="chain policy settings: train_policy: obs_noise must be >= 0"):
+        run_chain(out, tiny(policy={"obs_noise": -0.1}), progress=False)
+    with pytest.raises(UserInputError, match="unknown policy act 'mean'; expected one of: mode, sample"):
+        tiny(evaluation={"policy_act": "mean"})
+    with pytest.raises(UserInputError, match="settings: field 'critic.seed' is set by the config that holds it"):
+        tiny(critic={"seed": 4})
+    with pytest.raises(UserInputError, match="chain: critic.chunk is set by the chain itself"):
+        run_chain(out, replace(TINY, critic=replace(TINY.critic, chunk=4)), progress=False)
 
 
 def test_a_base_only_chain_trains_no_critic(chain, tmp_path):
     """The policy benchmark's chain: the data and policy steps are skipped when their outputs exist, and
     with the base mode alone no critic is trained and the evaluation runs without one."""
     copy_data_and_policy(chain[0], tmp_path)
-    result = run_chain(str(tmp_path), replace(TINY, modes=("base",)), progress=False)
+    result = run_chain(str(tmp_path), tiny(modes=("base",)), progress=False)
     assert not os.path.exists(tmp_path / "critic")
     summary = json.load(open(os.path.join(result["runs"]["base"]["libero_object"], "summary.json")))
     assert summary["config"]["critic"] is None and summary["episodes"] == 1
@@ -83,13 +114,13 @@ def test_a_chain_can_evaluate_its_policy_acting_by_draws_from_the_mixture(chain,
     """`policy_act="sample"` reaches the evaluation: the trained policy acts by seeded draws on the real
     simulator, so the same chain run twice gives the same episodes."""
     copy_data_and_policy(chain[0], tmp_path)
-    result = run_chain(str(tmp_path), replace(TINY, modes=("base",), policy_act="sample"), progress=False)
+    result = run_chain(str(tmp_path), tiny(modes=("base",), evaluation={"policy_act": "sample"}), progress=False)
     run = result["runs"]["base"]["libero_object"]
     assert json.load(open(os.path.join(run, "config.json")))["policy_act"] == "sample"
     traces = os.path.join(run, "traces")
     first = [json.load(open(os.path.join(traces, name)))["segments"] for name in sorted(os.listdir(traces))]
     shutil.rmtree(run)
-    again = run_chain(str(tmp_path), replace(TINY, modes=("base",), policy_act="sample"), progress=False)
+    again = run_chain(str(tmp_path), tiny(modes=("base",), evaluation={"policy_act": "sample"}), progress=False)
     assert again["base"] == result["base"]
     assert [json.load(open(os.path.join(traces, name)))["segments"] for name in sorted(os.listdir(traces))] == first
 
@@ -102,19 +133,19 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
     import h5py
 
     copy_data_and_policy(chain[0], tmp_path)
-    cfg = replace(
-        TINY,
+    cfg = tiny(
         critic_rollouts=2,
-        rollout_explore_at=(4, 8),
-        critic_backup="dataset",
-        trust_radius=None,
-        critic_reward="elegant",
-        critic_value_loss="bce",
-        critic_hidden=(16, 16),
-        critic_weight_decay=0.1,
-        critic_mc_weight=10.0,
-        critic_explored_fraction=0.5,
-        trigger="drop",
+        rollout={"explore_at": (4, 8)},
+        critic={
+            "backup": "dataset",
+            "reward": "elegant",
+            "value_loss": "bce",
+            "hidden": [16, 16],
+            "weight_decay": 0.1,
+            "mc_weight": 10.0,
+            "explored_fraction": 0.5,
+        },
+        evaluation={"jiti": {"trust_radius": None, "trigger": "drop"}},
         jiti_gate=True,
         modes=("base", "always", "jiti"),
     )
@@ -163,20 +194,20 @@ def test_a_chain_with_rollouts_trains_the_critic_on_them_and_evaluates_on_other_
             range(25)
         )
     with pytest.raises(UserInputError, match="jiti_gate validates on the rollouts' starts"):
-        run_chain(str(tmp_path / "other"), replace(TINY, jiti_gate=True), progress=False)
-    with pytest.raises(UserInputError, match="chain unknown JITI trigger 'rise'"):
-        run_chain(str(tmp_path / "other"), replace(cfg, trigger="rise"), progress=False)
+        run_chain(str(tmp_path / "other"), tiny(jiti_gate=True), progress=False)
+    with pytest.raises(UserInputError, match="unknown JITI trigger 'rise'"):
+        with_overrides(cfg, {"evaluation": {"jiti": {"trigger": "rise"}}})
     with pytest.raises(UserInputError, match="chain critic settings: unknown train-critic backup .mine."):
-        run_chain(str(tmp_path / "other"), replace(cfg, critic_backup="mine"), progress=False)
+        run_chain(str(tmp_path / "other"), with_overrides(cfg, {"critic": {"backup": "mine"}}), progress=False)
     with pytest.raises(UserInputError, match="chain critic settings: .*value_loss 'bce' needs"):
-        run_chain(str(tmp_path / "other"), replace(cfg, critic_reward="segment"), progress=False)
-    with pytest.raises(UserInputError, match="critic_explored_fraction needs explored decisions"):
-        run_chain(str(tmp_path / "other"), replace(cfg, critic_rollouts=0), progress=False)
-    with pytest.raises(UserInputError, match="rollout_explore_at must list decision steps >= 0"):
-        run_chain(str(tmp_path / "other"), replace(cfg, rollout_explore_at=(-8,)), progress=False)
+        run_chain(str(tmp_path / "other"), with_overrides(cfg, {"critic": {"reward": "segment"}}), progress=False)
+    with pytest.raises(UserInputError, match="critic.explored_fraction needs explored decisions"):
+        run_chain(str(tmp_path / "other"), with_overrides(cfg, {"critic_rollouts": 0}), progress=False)
+    with pytest.raises(UserInputError, match="--explore-at needs decision steps >= 0"):
+        with_overrides(cfg, {"rollout": {"explore_at": (-8,)}})
     assert not os.path.exists(tmp_path / "other")  # refused before anything was written
     with pytest.raises(UserInputError, match="other settings \\(critic_rollouts\\)"):
-        run_chain(str(tmp_path), replace(cfg, critic_rollouts=3), progress=False)
+        run_chain(str(tmp_path), with_overrides(cfg, {"critic_rollouts": 3}), progress=False)
 
 
 def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with_all(chain, tmp_path):
@@ -186,7 +217,7 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
     copy_data_and_policy(chain[0], tmp_path)
     result = run_chain(
         str(tmp_path),
-        replace(TINY, critic_members=2, seed=3, max_overrides=1, warmup="steer", candidates=5),
+        tiny(critic_members=2, seed=3, evaluation={"jiti": {"max_overrides": 1, "warmup": "steer", "n_candidates": 5}}),
         progress=False,
     )
     assert not os.path.exists(tmp_path / "critic")
@@ -199,34 +230,34 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
     )
     assert config["jiti"]["warmup"] == "steer" and config["jiti"]["n_candidates"] == 5
     with pytest.raises(UserInputError, match="critic_members must be >= 1"):
-        run_chain(str(tmp_path / "other"), replace(TINY, critic_members=0), progress=False)
-    with pytest.raises(UserInputError, match="chain unknown JITI warmup"):
-        run_chain(str(tmp_path / "other"), replace(TINY, warmup="always"), progress=False)
+        run_chain(str(tmp_path / "other"), tiny(critic_members=0), progress=False)
+    with pytest.raises(UserInputError, match="unknown JITI warmup"):
+        tiny(evaluation={"jiti": {"warmup": "always"}})
     with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):  # refused before any data is made
-        run_chain(str(tmp_path / "other"), replace(TINY, trigger="none"), progress=False)
-    with pytest.raises(UserInputError, match="chain JITI n_candidates must be >= 2"):
-        run_chain(str(tmp_path / "other"), replace(TINY, candidates=1), progress=False)
+        tiny(evaluation={"jiti": {"trigger": "none"}})
+    with pytest.raises(UserInputError, match="JITI n_candidates must be >= 2"):
+        tiny(evaluation={"jiti": {"n_candidates": 1}})
     assert not os.path.exists(tmp_path / "other")
 
 
 def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(monkeypatch, tmp_path):
-    """`elegant quickstart` hands the recipe (chunked policy, branch rollouts, outcome critic, steered JITI)
-    to the chain with the flags it was given, on one worker per core unless told otherwise."""
+    """`elegant quickstart` hands the recipe configs/quickstart.yaml (chunked policy, branch rollouts, outcome
+    critic, steered JITI) to the chain with the flags it was given, on one worker per core unless told otherwise."""
     from base_suites.runtime.jobs import available_cores
     from elegant import cli, pipeline
+    from elegant.chain_config import load_recipe
 
     calls = []
     monkeypatch.setattr(
         pipeline, "run_chain", lambda out, config, progress, workers: calls.append((out, config, workers)) or {}
     )
-    assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--task", "3", "--episodes", "4"]) == 0
+    assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--task", "3", "--seed", "2"]) == 0
     assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--workers", "1"]) == 0
-    (out, config, workers), (_, _, one) = calls
-    assert out == str(tmp_path / "qs") and (workers, one) == (available_cores(), 1)
-    assert config.tasks == (3,) and config.episodes == 4 and config.suites == pipeline.QUICKSTART.suites
-    assert (
-        replace(config, tasks=pipeline.QUICKSTART.tasks, episodes=pipeline.QUICKSTART.episodes) == pipeline.QUICKSTART
-    )
+    (out, config, workers), (_, plain, one) = calls
+    recipe = load_recipe("quickstart")
+    assert out == str(tmp_path / "qs") and (workers, one) == (available_cores(), 1) and plain == recipe
+    assert config.tasks == (3,) and config.seed == 2 and config.suites == recipe.suites
+    assert replace(config, tasks=recipe.tasks, seed=recipe.seed) == recipe
     # the recipe passes the chain's own checks (rollouts for the explored fraction, a steered warm-up)
     config.validate()
-    assert config.critic_rollouts > 0 and config.warmup == "steer" and config.chunk > 1
+    assert config.critic_rollouts > 0 and config.evaluation.jiti.warmup == "steer" and config.policy.chunk > 1

@@ -133,7 +133,7 @@ def test_resume_after_a_crash_equals_an_uninterrupted_run(demos, tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a)
     other_seed = train_policy([demos], str(tmp_path / "other"), epochs=1, seed=6, **SMALL)
     assert other_seed["loss_history"][0] != full["loss_history"][0]
-    with pytest.raises(UserInputError, match="cannot resume, field 'config'"):
+    with pytest.raises(UserInputError, match="cannot resume, field 'config.lr' was 0.001 and is now 0.5"):
         train_policy([demos], str(tmp_path / "cut"), epochs=3, seed=5, lr=0.5, resume=True, **SMALL)
     (tmp_path / "cut" / "checkpoint.pt").write_bytes(b"truncated")
     with pytest.raises(UserInputError, match="unreadable checkpoint"):

@@ -53,7 +53,8 @@ def changed_fields(
 ) -> list[tuple[str, Any, Any]]:
     """(key, stored value, this run's value) for each setting in which a run directory's stored record
     `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
-    by key; a resume refuses any of them (every resumable command compares settings this one way).
+    by key (a nested setting as 'outer.inner'); a resume refuses any of them (every resumable command
+    compares settings this one way).
     `added`: settings introduced after some records were written, with the value that reproduces what
     those records' runs did; a record without the key counts as having that value. A dict value names
     settings added inside a nested record (e.g. {"jiti": {"chunk": 1}}), filled in the same way."""
@@ -63,9 +64,15 @@ def changed_fields(
             old[key] = {**value, **old[key]}
         else:
             old.setdefault(key, value)
-    return [
-        (k, old.get(k), new.get(k)) for k in sorted(set(old) | set(new)) if k not in ignore and old.get(k) != new.get(k)
-    ]
+    changed = []
+    for k in sorted(set(old) | set(new)):
+        if k in ignore or old.get(k) == new.get(k):
+            continue
+        if isinstance(old.get(k), dict) and isinstance(new.get(k), dict):  # name the nested setting that differs
+            changed += [(f"{k}.{inner}", was, now) for inner, was, now in changed_fields(old[k], new[k])]
+        else:
+            changed.append((k, old.get(k), new.get(k)))
+    return changed
 
 
 def library_versions() -> dict[str, str]:

@@ -1,22 +1,28 @@
-"""Settings declared once: a config dataclass's fields carry their help, and command-line options are
-generated from them.
+"""Settings declared once: a config dataclass's fields carry their help; command-line options, recipe files
+and overrides are all read through them (docs/design.md, configuration).
 
-`setting(default, help)` declares a field. `add_settings_arguments` turns each field into `--field-name`
-(or the field's `flag`), typed by its annotation: int, float, str, a `Literal` of choices, a list or
-tuple of ints (written "64,64"), each optionally `| None`; a bool that defaults to False becomes a switch
+`setting(default, help)` declares a field. A field whose type is itself a config dataclass nests that
+config (the chain composes its stages' configs): `nested(factory, prefix, derived)` declares it, with the
+prefix its options take and the fields its owner sets itself (left out of the options and refused in a
+recipe). `add_settings_arguments` turns each field into `--prefix-field-name` (or the field's `flag`),
+typed by its annotation: int, float, str, a `Literal` of choices, a list or tuple of ints ("64,64") or of
+strings ("a,b"), each optionally `| None`; a bool that defaults to False becomes a switch
 `--field-name`, one that defaults to True a switch `--no-field-name`. Options default to None ("keep the
-config's default"), so `settings_from_args` returns only what the user set and the config's own defaults
-and validation apply to the rest.
+config's value"), so `settings_from_args` returns only what the user set, nested like the config.
+`load_config` reads a recipe (YAML) into a config, `with_overrides` applies nested settings to one.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import types
 import typing
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, Literal
+
+from base_suites.runtime.errors import UserInputError
 
 _SCALARS = (int, float, str)
 
@@ -39,12 +45,28 @@ def setting(
     return dataclasses.field(default=default, metadata=metadata)
 
 
+def nested(factory: Callable[[], Any], prefix: str, derived: tuple[str, ...] = ()) -> Any:
+    """A field holding another config: its options are `--{prefix}{field}`; `derived` names the fields
+    the owning config sets itself (they get no option and a recipe may not set them)."""
+    return dataclasses.field(default_factory=factory, metadata={"prefix": prefix, "derived": derived})
+
+
 def int_list(text: str) -> list[int]:
     """ "64,64" -> [64, 64]: comma-separated whole numbers (no ranges: a layer list is not an index set)."""
     try:
         values = [int(part) for part in text.split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated whole numbers, e.g. 64,64; got {text!r}") from None
+    return values
+
+
+def str_list(text: str) -> tuple[str, ...]:
+    """ "a,b" -> ("a", "b"), refusing empty names."""
+    values = tuple(part.strip() for part in text.split(","))
+    if not all(values):
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated names, e.g. libero_object,libero_goal; got {text!r}"
+        )
     return values
 
 
@@ -65,15 +87,23 @@ def index_list(text: str) -> tuple[int, ...]:
     return tuple(out)
 
 
-def _option(annotation: Any) -> tuple[Callable[[str], Any], tuple[Any, ...] | None]:
-    """(argparse type, choices) of a field annotation; None-able unions read as their other member."""
+def _bare(annotation: Any) -> Any:
+    """The annotation without `| None`."""
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
         (annotation,) = [a for a in typing.get_args(annotation) if a is not type(None)]
+    return annotation
+
+
+def _option(annotation: Any) -> tuple[Callable[[str], Any], tuple[Any, ...] | None]:
+    """(argparse type, choices) of a field annotation."""
+    annotation = _bare(annotation)
     origin, args = typing.get_origin(annotation), typing.get_args(annotation)
     if origin is Literal:
         return type(args[0]), args
     if origin in (list, tuple) and args and args[0] is int:
         return int_list, None
+    if origin in (list, tuple) and args and args[0] is str:
+        return str_list, None
     if annotation in _SCALARS:
         return annotation, None
     raise TypeError(f"no command-line option for a field of type {annotation!r}")
@@ -85,36 +115,130 @@ def _default(f: dataclasses.Field) -> Any:
     return f.default_factory() if f.default_factory is not dataclasses.MISSING else None
 
 
-def add_settings_arguments(parser: argparse.ArgumentParser, config_cls: type, exclude: tuple[str, ...] = ()) -> None:
-    """One option per field of `config_cls` (a dataclass) not in `exclude`."""
+def _is_config(annotation: Any) -> bool:
+    return dataclasses.is_dataclass(_bare(annotation))
+
+
+def add_settings_arguments(
+    parser: argparse.ArgumentParser,
+    config_cls: type,
+    exclude: tuple[str, ...] = (),
+    *,
+    show_defaults: bool = True,
+    _dest: str = "",
+    _prefix: str = "",
+) -> None:
+    """One option per field of `config_cls` (a dataclass) not in `exclude`, nested configs included.
+    `show_defaults`: say each field's default in its help (not where a recipe file supplies the values)."""
     hints = typing.get_type_hints(config_cls)
     for f in dataclasses.fields(config_cls):
         if f.name in exclude:
             continue
-        default, help_text, flag = _default(f), f.metadata.get("help", ""), f.metadata.get("flag")
-        if hints[f.name] is bool:
-            switch = flag or ("--no-" if default else "--") + f.name.replace("_", "-")
-            parser.add_argument(
-                switch, dest=f.name, action="store_const", const=not default, default=None, help=help_text
+        if _is_config(hints[f.name]):
+            inner = [name.split(".", 1)[1] for name in exclude if name.startswith(f"{f.name}.")]
+            add_settings_arguments(
+                parser,
+                _bare(hints[f.name]),
+                (*f.metadata.get("derived", ()), *inner),
+                show_defaults=show_defaults,
+                _dest=f"{_dest}{f.name}.",
+                _prefix=_prefix + f.metadata.get("prefix", f"{f.name}-"),
             )
-            continue
-        kind, choices = _option(hints[f.name])
-        kind = f.metadata.get("parse") or kind
-        if default is not None:
-            shown = ",".join(map(str, default)) if isinstance(default, (list, tuple)) else default
-            help_text += f" (default: {shown})"
-        parser.add_argument(
-            flag or "--" + f.name.replace("_", "-"),
-            dest=f.name,
-            type=kind,
-            choices=choices,
-            default=None,
-            metavar=f.metadata.get("metavar"),
-            help=help_text,
-        )
+        else:
+            _add_option(parser, f, hints[f.name], f"{_dest}{f.name}", _prefix, show_defaults)
+
+
+def _add_option(
+    parser: argparse.ArgumentParser, f: dataclasses.Field, annotation: Any, dest: str, prefix: str, show_default: bool
+) -> None:
+    """The option of one field, stored under `dest` and named `--{prefix}{field-name}` (or its flag); a
+    bool is a pair of switches, `--name` and `--no-name`."""
+    default, help_text = _default(f), f.metadata.get("help", "").replace("%", "%%")  # argparse formats help with %
+    flag = f.metadata.get("flag")
+    flag = "--" + prefix + flag.removeprefix("--") if flag else None
+    name = prefix + f.name.replace("_", "-")
+    if show_default and default is not None:
+        shown = ",".join(map(str, default)) if isinstance(default, (list, tuple)) else default
+        help_text += f" (default: {shown})"
+    if annotation is bool:
+        switch = flag or "--" + name
+        parser.add_argument(switch, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        return
+    kind, choices = _option(annotation)
+    parser.add_argument(
+        flag or "--" + name,
+        dest=dest,
+        type=f.metadata.get("parse") or kind,
+        choices=choices,
+        default=None,
+        metavar=f.metadata.get("metavar") or (None if choices else f.name.upper()),
+        help=help_text,
+    )
 
 
 def settings_from_args(args: argparse.Namespace, config_cls: type, exclude: tuple[str, ...] = ()) -> dict[str, Any]:
-    """The fields of `config_cls` the user set on the command line (options left out stay unset)."""
-    names = [f.name for f in dataclasses.fields(config_cls) if f.name not in exclude]
-    return {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
+    """The fields of `config_cls` the user set on the command line, nested like the config (options left
+    out stay unset)."""
+    out: dict[str, Any] = {}
+    for dest, value in vars(args).items():
+        head = dest.split(".")[0]
+        if value is None or head in exclude or head not in {f.name for f in dataclasses.fields(config_cls)}:
+            continue
+        *path, name = dest.split(".")
+        node = out
+        for key in path:
+            node = node.setdefault(key, {})
+        node[name] = value
+    return out
+
+
+def with_overrides(
+    config: Any, overrides: Mapping[str, Any], where: str = "settings", *, _path: str = "", _owned: tuple[str, ...] = ()
+) -> Any:
+    """`config` with `overrides` (nested like it: {"critic": {"steps": 10}}) replaced. An unknown name, or a
+    field the owning config sets itself (`nested(..., derived=...)`), is refused in one line naming it."""
+    names = {f.name: f for f in dataclasses.fields(config)}
+    hints = typing.get_type_hints(type(config))
+    changes = {}
+    for key, value in overrides.items():
+        if key not in names:
+            raise UserInputError(f"{where}: field '{_path}{key}' unknown; expected one of: {', '.join(sorted(names))}")
+        if key in _owned:
+            raise UserInputError(f"{where}: field '{_path}{key}' is set by the config that holds it; leave it out")
+        if _is_config(hints[key]) and isinstance(value, Mapping):
+            owned = (
+                *names[key].metadata.get("derived", ()),
+                *(name.split(".", 1)[1] for name in _owned if name.startswith(f"{key}.")),
+            )
+            changes[key] = with_overrides(getattr(config, key), value, where, _path=f"{_path}{key}.", _owned=owned)
+        else:
+            changes[key] = _coerce(hints[key], value)
+    return dataclasses.replace(config, **changes)
+
+
+def _coerce(annotation: Any, value: Any) -> Any:
+    """A value read from YAML or JSON in the field's type: lists become tuples for tuple fields."""
+    bare = _bare(annotation)
+    if value is not None and typing.get_origin(bare) is tuple and isinstance(value, list):
+        return tuple(value)
+    return value
+
+
+def load_config(config_cls: type, path: str | os.PathLike) -> Any:
+    """The config a recipe file (YAML, nested like the config) describes: `config_cls()`'s defaults with
+    the file's values. A missing file, bad YAML or an unknown field is one line naming the file."""
+    import yaml
+
+    try:
+        with open(path) as f:
+            data = yaml.safe_load(f)
+    except OSError as e:
+        raise UserInputError(f"{path}: cannot read the recipe ({e.strerror})") from None
+    except yaml.YAMLError as e:
+        raise UserInputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(data, Mapping):
+        raise UserInputError(f"{path}: expected a mapping of settings, got {type(data).__name__}")
+    try:
+        return with_overrides(config_cls(), data, where=str(path))
+    except TypeError as e:
+        raise UserInputError(f"{path}: {e}") from None

@@ -3,12 +3,12 @@ JITI's own settings nested as a `JITIConfig` (docs/design.md, configuration)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 from base_suites.env import ObsMode
 from base_suites.runtime.errors import UserInputError, unknown_choice
-from base_suites.runtime.settings import index_list, setting
+from base_suites.runtime.settings import index_list, nested, setting
 from elegant.intervention.config import JITIConfig
 from elegant.policies.bc_config import DEFAULT_MODES
 from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, PolicyAct
@@ -35,7 +35,7 @@ class EvalConfig:
     gate: str | None = setting(
         None, "mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)"
     )
-    jiti: JITIConfig = field(default_factory=JITIConfig)
+    jiti: JITIConfig = nested(JITIConfig, prefix="")
 
     def __post_init__(self) -> None:
         self.validate()

@@ -31,8 +31,8 @@ class BCConfig:
     chunk: int = setting(1, "actions predicted per decision and executed open-loop (action chunking)")
     task_film: bool = setting(
         True,
-        "feed the task one-hot at the input only (policies before FiLM task conditioning)",
-        flag="--no-task-film",
+        "the task one-hot also modulates every hidden layer (off: it enters at the input only, as policies "
+        "before FiLM task conditioning)",
     )
     obs_noise: float = setting(
         0.0,
