@@ -20,6 +20,7 @@ import numpy as np
 from annotations.dataset import Demo, DemoWriter
 from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
+from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import changed_fields
 from base_suites.runtime.jobs import check_picklable, check_workers, in_order, run_jobs
@@ -347,30 +348,45 @@ def collect_demos(
     return summary
 
 
+class EpisodeRecording(StepObserver):
+    """Records what the demo format stores of an episode: the simulator state and observation before each
+    step, the executed action, the next observation and the reward."""
+
+    def __init__(self) -> None:
+        self.states: list[np.ndarray] = []
+        self.obs: list[np.ndarray] = []
+        self.next_obs: list[np.ndarray] = []
+        self.actions: list[np.ndarray] = []
+        self.rewards: list[float] = []
+
+    def before_step(self, env: LiberoEnv, obs: Mapping[str, np.ndarray]) -> None:
+        self.states.append(env.get_sim_state())
+        self.obs.append(obs["state"])
+
+    def after_step(
+        self, env: LiberoEnv, action: np.ndarray, obs: Mapping[str, np.ndarray], reward: float, info: Mapping[str, Any]
+    ) -> bool:
+        self.actions.append(action)
+        self.next_obs.append(obs["state"])
+        self.rewards.append(reward)
+        return False
+
+
 def record_episode(env: LiberoEnv, policy, obs: Mapping[str, np.ndarray]) -> dict[str, Any]:
-    """Run `policy` from the env's just-reset state and record what the demo format stores."""
-    states, observations, next_observations, actions, rewards = [], [], [], [], []
-    info: dict[str, Any] = {"success": False, "perturbation": []}
-    for _ in range(env.max_steps):
-        states.append(env.get_sim_state())
-        observations.append(obs["state"])
-        action = np.asarray(policy(obs), dtype=np.float64)
-        obs, reward, terminated, truncated, info = env.step(action)
-        actions.append(action)
-        next_observations.append(obs["state"])
-        rewards.append(reward)
-        if terminated or truncated:
-            break
-    dones = np.zeros(len(actions), dtype=np.uint8)
+    """Run `policy` from the env's just-reset state (`base_suites.rollout.run_episode`) and return what the
+    demo format stores."""
+    recording = EpisodeRecording()
+    run = run_episode(env, policy, obs, [recording])
+    dones = np.zeros(run.steps, dtype=np.uint8)
     dones[-1] = 1
     return {
-        "actions": np.array(actions),
-        "states": np.array(states),
-        "obs": np.array(observations),
-        "next_obs": np.array(next_observations),
-        "rewards": np.array(rewards, dtype=np.float32),
+        "actions": np.array(recording.actions),
+        "states": np.array(recording.states),
+        "obs": np.array(recording.obs),
+        "next_obs": np.array(recording.next_obs),
+        "rewards": np.array(recording.rewards, dtype=np.float32),
         "dones": dones,
-        "success": bool(info["success"]),
-        "perturbation": info["perturbation"],
+        "success": bool(run.info["success"]),
+        "perturbation": run.info["perturbation"],
         "final_state": env.get_sim_state(),
     }

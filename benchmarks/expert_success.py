@@ -15,6 +15,7 @@ import numpy as np
 
 from base_suites import list_tasks, make_env
 from base_suites.experts import ScriptedExpert, parse_quality
+from base_suites.rollout import run_episode
 
 
 def run_task(suite: str, index: int, inits: int, quality, seed: int) -> dict:
@@ -25,13 +26,9 @@ def run_task(suite: str, index: int, inits: int, quality, seed: int) -> dict:
     for i in range(inits):
         obs, _ = env.reset(options={"init_state": i % env.task.n_init_states})
         expert.reset(env.metadata, episode=i)
-        info = {"success": False}
-        for _ in range(env.max_steps):
-            obs, _, terminated, truncated, info = env.step(expert(obs))
-            steps += 1
-            if terminated or truncated:
-                break
-        successes.append(bool(info["success"]))
+        run = run_episode(env, expert, obs)
+        steps += run.steps
+        successes.append(bool(run.info["success"]))
     env.close()
     seconds = time.perf_counter() - start
     return {

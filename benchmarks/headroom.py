@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from base_suites import get_task, make_env
+from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError
 from elegant.evaluation.runner import episode_start, open_critic, open_policy
 from elegant.intervention.jiti import check_critic_chunk, decide, draw_candidates, plan_distance
@@ -42,6 +43,16 @@ from elegant.intervention.selectors import choose_candidate, eligible_candidates
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import chunk_of
 from elegant.reporting.report import save_figure
+
+
+class _StopAtViolation(StepObserver):
+    """Judges each step with the ITC monitor and, if asked, ends the episode at its first violation."""
+
+    def __init__(self, monitor, stop: bool) -> None:
+        self.monitor, self.stop = monitor, stop
+
+    def after_step(self, env, action, obs, reward, info) -> bool:
+        return not all(self.monitor.step(action).kept.values()) and self.stop
 
 
 def _rollout(
@@ -55,17 +66,18 @@ def _rollout(
     stop_on_violation: bool,
     at_decision: Callable[[int, dict, np.ndarray], None] | None = None,
 ) -> tuple[list[np.ndarray], bool]:
-    """Episode from the given start: `prefix` actions first, then the policy's. Returns the executed
-    actions and whether the episode was an elegant success. `at_decision(t, obs, base_plan)` sees each of
-    the policy's decisions (the policy decides or observes at every step, prefix included, so its history
-    and its chunk boundaries match the base episode's)."""
+    """Episode from the given start (`base_suites.rollout.run_episode`): `prefix` actions first, then the
+    policy's. Returns the executed actions and whether the episode was an elegant success.
+    `at_decision(t, obs, base_plan)` sees each of the policy's decisions (the policy decides or observes at
+    every step, prefix included, so its history and its chunk boundaries match the base episode's)."""
     obs, _ = env.reset(seed=reset_seed, options={"init_state": init_index})
     monitor.reset()
     policy.reset(env.metadata, seed=reset_seed)
     actions: list[np.ndarray] = []
     queue: deque[np.ndarray] = deque()
-    info: dict[str, Any] = {"success": False}
-    for t in range(env.max_steps):
+
+    def act(obs: dict) -> np.ndarray:
+        t = len(actions)
         if queue:
             policy.observe(obs)
         else:
@@ -74,16 +86,13 @@ def _rollout(
                 at_decision(t, obs, plan)
             queue.extend(plan)
         action = queue.popleft()
-        if t < len(prefix):
-            action = prefix[t]
-        obs, _, terminated, truncated, info = env.step(action)
-        actions.append(action)
-        result = monitor.step(action)
-        if stop_on_violation and not all(result.kept.values()):
-            return actions, False
-        if terminated or truncated:
-            break
-    return actions, bool(monitor.verdict(bool(info["success"])).elegant)
+        actions.append(prefix[t] if t < len(prefix) else action)
+        return actions[-1]
+
+    run = run_episode(env, act, obs, [_StopAtViolation(monitor, stop_on_violation)])
+    if run.stopped:
+        return actions, False
+    return actions, bool(monitor.verdict(bool(run.info["success"])).elegant)
 
 
 def branch_episode(

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -21,6 +20,7 @@ import torch
 
 from annotations import TaskFeatureEncoder, task_key
 from base_suites import make_env
+from base_suites.rollout import run_episode
 from elegant.intervention.jiti import JITI
 
 TARGET = 0.05
@@ -55,16 +55,17 @@ def make_policy():
 
 
 def measure(env, agent: JITI, steps: int, seed: int) -> dict[str, float]:
+    """`steps` decisions of `agent` through `run_episode`, starting a new episode whenever one ends."""
     obs, _ = env.reset(seed=seed, options={"init_state": 0})
     agent.reset(env.metadata, seed=seed)
-    env_time = 0.0
-    for _ in range(steps):
-        action = agent(obs)
-        start = time.perf_counter()
-        obs, _, terminated, truncated, _ = env.step(action)
-        env_time += time.perf_counter() - start
-        if terminated or truncated:
+    env_time, taken = 0.0, 0
+    while taken < steps:
+        run = run_episode(env, agent, obs, max_steps=steps - taken)
+        env_time, taken = env_time + run.env_time, taken + run.steps
+        if run.terminated or run.truncated:
             obs, _ = env.reset(seed=seed)
+        else:
+            obs = run.obs
     decision = float(np.mean([d.time for d in agent.log]))
     return {
         "decision_ms": 1e3 * decision,

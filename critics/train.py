@@ -30,6 +30,7 @@ from tqdm.auto import tqdm
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, library_versions
+from base_suites.runtime.migrations import added_later
 from critics.artifact import atomic_torch_save, save_critic
 from critics.config import TrainConfig
 from critics.data import TransitionData, load_transitions, make_replay_buffer
@@ -142,17 +143,9 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
 
 
 def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
-    # settings added after some checkpoints were written, with the values those runs trained with
-    added = {
-        "chunk": 1,
-        "backup": "policy",
-        "weight_decay": 0.0,
-        "mc_weight": 0.0,
-        "value_loss": "mse",
-        "explored_fraction": 0.0,
-        "bootstrap": None,
-    }
-    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added)
+    changed = changed_fields(
+        state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added_later("critic checkpoint")
+    )
     if changed:
         raise UserInputError(
             f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "

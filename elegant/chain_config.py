@@ -24,6 +24,7 @@ from typing import Any
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
+from base_suites.runtime.migrations import added_later
 from base_suites.runtime.settings import index_list, load_config, nested, setting, with_overrides
 from critics.config import TrainConfig
 from elegant.evaluation.config import EvalConfig, RolloutConfig
@@ -225,29 +226,6 @@ _FLAT_FIELDS = {
     "warmup": "evaluation.jiti.warmup",
     "candidates": "evaluation.jiti.n_candidates",
 }
-_FLAT_ADDED_LATER = {
-    "chunk": 1,
-    "window": None,
-    "policy_successful_only": False,
-    "policy_obs_noise": 0.0,
-    "critic_rollouts": 0,
-    "rollout_explore": 0.3,
-    "critic_backup": "policy",
-    "rollout_explore_at": None,
-    "critic_hidden": [256, 256],
-    "critic_weight_decay": 0.0,
-    "critic_mc_weight": 0.0,
-    "critic_value_loss": "mse",
-    "critic_explored_fraction": 0.0,
-    "trigger": None,
-    "critic_members": 1,
-    "max_overrides": None,
-    "warmup": None,
-    "jiti_gate": False,
-    "candidates": None,
-    "policy_act": "mode",
-    "policy_modes": 5,
-}
 _FLAT_NONE_MEANS = {
     "window": 10,
     "trigger": "deviation",
@@ -261,7 +239,7 @@ _FLAT_NONE_MEANS = {
 
 def migrate_flat_record(record: dict[str, Any]) -> dict[str, Any]:
     """A format-1 (flat) chain record as today's nested settings, equal to what that chain ran with."""
-    flat = {**_FLAT_ADDED_LATER, **record}
+    flat = {**added_later("flat chain"), **record}
     if flat["rollout_explore_at"] is not None:  # a rate was recorded but never used beside branch points
         flat["rollout_explore"] = 0.0
     nested_record: dict[str, Any] = {}

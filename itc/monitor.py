@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from base_suites.rollout import StepObserver
 from itc.context import StepContext
 from itc.params import ITCParams
 from itc.registry import CRITERIA, make_constraints
@@ -93,8 +94,9 @@ class EpisodeVerdict:
         }
 
 
-class ITCMonitor:
-    """Evaluates the four ITCs on one env (a `LiberoEnv` or a wrapper around one), step by step."""
+class ITCMonitor(StepObserver):
+    """Evaluates the four ITCs on one env (a `LiberoEnv` or a wrapper around one), step by step; as a
+    `StepObserver` it judges each step of `base_suites.rollout.run_episode`."""
 
     def __init__(self, env, spec: ConstraintSpec | None = None, params: ITCParams | None = None) -> None:
         base = getattr(env, "unwrapped", env)
@@ -139,6 +141,11 @@ class ITCMonitor:
             self._steps[name].append(not why)
             self._events.extend((t, name, r) for r in why)
         return StepResult(t, {name: not why for name, why in reasons.items()}, reasons)
+
+    def after_step(self, env: Any, action: np.ndarray, obs: Any, reward: float, info: Mapping[str, Any]) -> bool:
+        """`run_episode`'s hook: judge the step just taken."""
+        self.step(action)
+        return False
 
     def verdict(self, success: bool) -> EpisodeVerdict:
         """The labels of the episode so far."""

@@ -57,13 +57,18 @@ def changed_fields(
     compares settings this one way).
     `added`: settings introduced after some records were written, with the value that reproduces what
     those records' runs did; a record without the key counts as having that value. A dict value names
-    settings added inside a nested record (e.g. {"jiti": {"chunk": 1}}), filled in the same way."""
+    settings added inside a nested record (e.g. {"jiti": {"chunk": 1}}), filled in the same way; the
+    project's table of them is `base_suites.runtime.migrations`."""
+    from base_suites.runtime.migrations import SAME_AS_NOW
+
     old = dict(old) if isinstance(old, dict) else {}
     for key, value in (added or {}).items():
         if isinstance(value, dict) and isinstance(old.get(key), dict):
-            old[key] = {**value, **old[key]}
+            now = new.get(key) if isinstance(new.get(key), dict) else {}
+            filled = {k: now.get(k) if v == SAME_AS_NOW else v for k, v in value.items()}
+            old[key] = {**filled, **old[key]}
         else:
-            old.setdefault(key, value)
+            old.setdefault(key, new.get(key) if value == SAME_AS_NOW else value)
     changed = []
     for k in sorted(set(old) | set(new)):
         if k in ignore or old.get(k) == new.get(k):

@@ -49,6 +49,7 @@ from base_suites import get_task
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_workers
+from base_suites.runtime.migrations import added_later
 from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.metrics import lifelong_metrics
 from elegant.evaluation.runner import evaluate
@@ -114,7 +115,7 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
     if out.exists() and not out.is_dir():
         raise UserInputError(f"{out}: exists and is not a directory")
     if resume and path.exists():
-        changed = changed_fields(read_json_file(path, "lifelong config"), config, added={"modes": 5})
+        changed = changed_fields(read_json_file(path, "lifelong config"), config, added=added_later("lifelong run"))
         if changed:
             key, before, now = changed[0]
             raise UserInputError(

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -31,8 +30,10 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
+from base_suites.rollout import run_episode
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
+from base_suites.runtime.migrations import added_later
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import EvalConfig
 from elegant.evaluation.episode_log import EpisodeLog, run_records
@@ -124,22 +125,8 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
             raise UserInputError(
                 f"{out} already holds a run (config.json); resume it (--resume) or choose another directory"
             )
-        # runs from before chunking (one action per decision), before mode "random" (so its rate had no
-        # effect), before a subset of init states could be chosen, before the minimum gain (0: none) and
-        # before the one-sided trigger, the override budget and the steered warm-up
-        added = {
-            "init_states": None,
-            "policy_act": DEFAULT_POLICY_ACT,
-            "jiti": {
-                "chunk": 1,
-                "random_rate": config["jiti"]["random_rate"],
-                "min_gain": 0.0,
-                "trigger": "deviation",
-                "max_overrides": None,
-                "warmup": "base",
-            },
-        }
-        changed = changed_fields(read_json_file(path, "run config"), config, ignore=("episodes",), added=added)
+        stored = read_json_file(path, "run config")
+        changed = changed_fields(stored, config, ignore=("episodes",), added=added_later("eval run"))
         if changed:
             key, before, now = changed[0]
             raise UserInputError(
@@ -151,32 +138,24 @@ def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
 
 
 def _run_episode(env, agent: JITI, monitor, init_index: int, reset_seed: int) -> tuple[dict[str, Any], Any]:
-    """One rollout; returns the episode's numbers and the ITC verdict."""
+    """One rollout (`base_suites.rollout.run_episode`, judged by the ITC monitor); returns the episode's
+    numbers and the ITC verdict."""
     obs, _ = env.reset(seed=reset_seed, options={"init_state": init_index})
     monitor.reset()
     agent.reset(env.metadata, seed=reset_seed)
-    env_time, steps, done, info = 0.0, 0, False, {}
-    while not done:
-        action = agent(obs)
-        start = time.perf_counter()
-        obs, _, terminated, truncated, info = env.step(action)
-        env_time += time.perf_counter() - start
-        monitor.step(action)
-        steps += 1
-        done = terminated or truncated
-    verdict = monitor.verdict(bool(info["success"]))
+    run = run_episode(env, agent, obs, [monitor])
+    verdict = monitor.verdict(bool(run.info["success"]))
     numbers = {
         "success": bool(verdict.success),
         "elegant": bool(verdict.elegant),
         "violated": sorted(verdict.violated),
         "interventions": agent.interventions,
         "overrides": agent.overrides,
-        "steps": steps,
-        "decision_time": float(
-            sum(d.time for d in agent.log) / steps
-        ),  # per step: a chunked policy decides every few steps
-        "env_step_time": env_time / steps,
-        "perturbation": info.get("perturbation", []),
+        "steps": run.steps,
+        # per step: a chunked policy decides every few steps
+        "decision_time": float(sum(d.time for d in agent.log) / run.steps),
+        "env_step_time": run.env_time / run.steps,
+        "perturbation": run.info.get("perturbation", []),
     }
     return numbers, verdict
 

@@ -30,15 +30,14 @@ from typing import Any
 
 from base_suites import UserInputError
 from base_suites.runtime.io import atomic_write, read_json_file
+from base_suites.runtime.migrations import added_later
 from elegant.evaluation.episode_log import EpisodeLog
-from elegant.policies.protocol import DEFAULT_POLICY_ACT
 
 GATE_FORMAT = "libero-elegant-gate/3"
 GATED_MODES = ("jiti", "always")
 # the fields of a run's config.json that decide what a gated task's JITI or `always` does: a gate's
 # choices hold only for the policy, critic and JITI settings its validation runs used
 AGENT_FIELDS = ("policy", "policy_act", "critic", "jiti")
-AGENT_DEFAULTS = {"policy_act": DEFAULT_POLICY_ACT}  # what runs and gates from before a field existed did
 INTERVENTION_BUDGET = 0.4  # issue 7's bound on JITI: at most 40% of `always`'s interventions
 
 
@@ -79,7 +78,8 @@ def _paired_effects(
 
 def _agent(config: dict[str, Any]) -> dict[str, Any]:
     """The AGENT_FIELDS of a run's config: what a gate records as the JITI it validated."""
-    return {field: config.get(field, AGENT_DEFAULTS.get(field)) for field in AGENT_FIELDS}
+    defaults = added_later("gate agent")  # what runs and gates from before a field existed did
+    return {field: config.get(field, defaults.get(field)) for field in AGENT_FIELDS}
 
 
 def _flat(agent: dict[str, Any]) -> dict[str, Any]:

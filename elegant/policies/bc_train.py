@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields
+from base_suites.runtime.migrations import added_later
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
@@ -100,7 +101,7 @@ def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
     changed = changed_fields(
         state.get("fingerprint") if isinstance(state, dict) else None,
         fingerprint,
-        added={"successful_only": False, "config": {"obs_noise": 0.0}},
+        added=added_later("policy checkpoint"),
     )
     if changed:
         key, was, now = changed[0]
