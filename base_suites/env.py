@@ -11,13 +11,9 @@ LIBERO re-samples where the fixtures (cabinets, racks, stoves) stand on every re
 RNG, and the shipped init states do not record it (they hold joint positions only). Resets therefore
 draw the layout from the episode seed, so the same seed gives the same scene in any process, and
 `fixture_layout()` / `set_fixture_layout()` let replays of stored states rebuild the recorded scene.
-The fixtures' poses are deliberately not in the state. Measured on libero_goal (50 scripted demos per
-task): with them, the BC policy reads their per-reset jitter (up to 2 cm per axis) as an episode
-identifier and overfits (goal/1 success 85-88% -> 33-60% over two training seeds), and an elegance
-critic ranks held-out alternatives no better (advantage AUROC 0.68 against 0.70 without). With 100
-demos per task, JITI with critics that also see the fixtures' poses scores -1.0 ESR on libero_goal's
-validation starts against +4.2 with state-only critics, and a policy that sees them is no stronger held
-out (63.0 / 54.8 success / ESR against 63.8 / 52.0; docs/lab/jiti-sessions-30-38.md).
+The fixtures' poses are deliberately not in the state: a BC policy reads their per-reset jitter (up to
+2 cm per axis) as an episode identifier and overfits, and neither critics nor policies that saw them did
+better (docs/lab/jiti-sessions-30-38.md).
 """
 
 from __future__ import annotations

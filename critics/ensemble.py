@@ -1,10 +1,10 @@
 """Several independently trained critics scored together, so JITI can ask whether they agree.
 
 One critic's ranking of a policy's alternatives on new starts is only a little better than chance
-(held-out advantage AUROC about 0.70 on libero_goal/1, docs/lab/jiti-sessions-23-29.md), and its confident-looking
+(`elegant rank-check`), and its confident-looking
 overrides of a good plan are where JITI loses elegance. Critics trained on different resamples of the
 data (`train_critic(..., bootstrap=seed)`) err differently where the data says little, and agree where
-it is clear; critics that differ only in their network seed make the same mistakes (docs/lab/jiti-sessions-23-29.md).
+it is clear; critics that differ only in their network seed make the same mistakes.
 `CriticEnsemble` scores a state's candidates with every member: `q` is their mean (the value JITI's
 window watches), and `member_q` gives each member's scores so a selection rule can demand that every
 member prefers an alternative to the base plan before overriding it.

@@ -26,7 +26,7 @@ rare binary outcome ranked a policy's candidates worse than cross-entropy on the
 `mc_weight` > 0 adds to the TD regression a regression of Q(s, a_data) on the Monte-Carlo return itself
 (where it is one, not the "no floor" mark): TD(0) through chunk after chunk barely carried an outcome 100
 steps away back to the decision that caused it, while the same network fitted to the returns ranked a
-policy's candidates by their simulated outcomes (see the branch experiments in benchmarks/RESULTS.md).
+policy's candidates by their simulated outcomes (`elegant rank-check`).
 
 Each `loss_*` term sends gradients only to its own parameters (the critic terms to the critics, the actor
 term to the actor through its reparameterised action, the temperature terms to their log-multipliers), so

@@ -85,7 +85,7 @@ class _Run:
         # Explored decisions are the only transitions whose action was drawn independently of the state;
         # on the others the policy's action is a function of the state, and a critic can score the action
         # by what it says about the state rather than by what it does. Oversampling them lets the critic
-        # learn what an action changes. They are rare (one transition in 90 of the goal/1 data of issue 7).
+        # learn what an action changes. They are rare (about one transition in 90 of a branch-rollout file).
         self.explored_buffer = None
         if cfg.explored_per_batch:
             rows = data.explored.nonzero().flatten()

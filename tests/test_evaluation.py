@@ -211,7 +211,9 @@ def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(run
     shutil.copytree(runs["root"] / "full", out)
     config = json.loads((out / "config.json").read_text())
     assert config["policy_act"] == "mode"
+    assert config["format"] == "libero-elegant-run/1"
     del config["init_states"], config["jiti"]["chunk"], config["jiti"]["random_rate"], config["policy_act"]
+    del config["format"]  # runs from before the schema had none
     (out / "config.json").write_text(json.dumps(config))
     assert run(out, resume=True)["episodes"] == 2
 

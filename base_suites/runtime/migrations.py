@@ -18,6 +18,7 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
     # rate had no effect), before a subset of init states, the minimum gain, the one-sided trigger, the
     # override budget, the steered warm-up and the policy act
     "eval run": {
+        "format": "libero-elegant-run/1",
         "init_states": None,
         "policy_act": "mode",
         "jiti": {
@@ -30,7 +31,7 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
         },
     },
     # elegant lifelong's OUT/config.json: before the mixture size was a setting, policies had 5 components
-    "lifelong run": {"modes": 5},
+    "lifelong run": {"format": "libero-elegant-lifelong/1", "modes": 5},
     # train-policy's checkpoint fingerprint: before the success filter and observation noise
     "policy checkpoint": {"successful_only": False, "config": {"obs_noise": 0.0}},
     # train-critic's checkpoint config

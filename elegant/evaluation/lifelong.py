@@ -59,6 +59,9 @@ from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir, train_policy
 from elegant.reporting.report import markdown_table, percent, save_figure
 
+# the schema of OUT/config.json; records from before it had none and count as this one
+LIFELONG_FORMAT = "libero-elegant-lifelong/1"
+
 
 @dataclass
 class _Run:
@@ -220,6 +223,7 @@ def run_lifelong(
     defaults = BCConfig(epochs=epochs, seed=seed, modes=modes)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
     config = {
+        "format": LIFELONG_FORMAT,
         "protocol": "LIBERO lifelong (Liu et al. 2023)",
         "algorithm": "sequential",
         "suite": suite,

@@ -42,6 +42,10 @@ from elegant.intervention.jiti import JITI
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
 from elegant.reporting.report import write_run_report
 
+# the schema of RUN/config.json; records from before it had none and count as this one
+# (`base_suites.runtime.migrations`)
+RUN_FORMAT = "libero-elegant-run/1"
+
 
 def episode_start(
     seed: int, suite: str, task_index: int, episode: int, n_init_states: int, init_states: Sequence[int] | None = None
@@ -210,6 +214,7 @@ def evaluate(
 
         task_modes = read_gate(cfg.gate, suite, [task_key(suite, i) for i in indices], chosen, described)
     record = {
+        "format": RUN_FORMAT,
         "suite": suite,
         "tasks": indices,
         **described,

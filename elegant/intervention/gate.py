@@ -1,24 +1,19 @@
 """How each task runs under JITI (base, JITI or `always`), decided on validation starts, never on the evaluation's.
 
-JITI with one critic helps some tasks and spoils others: on libero_goal/4 it made 14 more episodes
-elegant and spoiled none, on libero_goal/0 it spoiled 7 and rescued none, and no per-state Q threshold
-tells the two apart (the Q bands at the interventions overlap). Whether the critic's choices help a
-task is an empirical question per task, so it is answered the way a researcher would: run the base
+Whether a critic's choices help a task is an empirical question per task (no per-state Q threshold tells
+the tasks JITI helps from those it spoils), so it is answered the way a researcher would: run the base
 policy and JITI on validation starts (the init states the critic's rollouts came from, e.g.
 `--init-states 0-24`), pair their episodes (same task, same episode index, hence the same start), and
 enable JITI on a task only if it made more episodes elegant than it spoiled there. `elegant eval
 --gate gate.json` then runs the other tasks as the base policy, and refuses a gate validated on any of
 the evaluation's own starts. A gate's choices are evidence about one policy, critic and set of JITI
-settings (on libero_goal/2 the steered warm-up alone decides whether JITI helps), so the gate records
-them and refuses an evaluation, or an `always` run, with any other.
+settings, so the gate records them and refuses an evaluation, or an `always` run, with any other.
 
-Some tasks need more than JITI's rare interventions: on libero_object/5 the session-31 policy fails
-half its held-out episodes, and `always` (re-ranking every decision) made many of them elegant where
-JITI's trigger made few (ESR: base 44%, JITI 56%, `always` 76%). Given an `always` run on the same
-validation starts, the gate may choose `always` for such a task, within a budget on the suite's
-interventions (by default 40% of `always`'s on every task, issue 7's bound on JITI), so the suite
-stays a sparse intervener while the tasks that need constant steering get it. How well validation
-predicts the held-out effect, measured: benchmarks/RESULTS.md (the JITI recipe) and docs/lab/.
+Some tasks need more than JITI's rare interventions (a base policy that fails half its episodes there):
+given an `always` run on the same validation starts, the gate may choose `always` for such a task, within
+a budget on the suite's interventions (by default 40% of `always`'s on every task), so the suite stays a
+sparse intervener while the tasks that need constant steering get it. How well validation predicts the
+held-out effect is measured in benchmarks/RESULTS.md (the JITI recipe).
 """
 
 from __future__ import annotations
@@ -38,7 +33,7 @@ GATED_MODES = ("jiti", "always")
 # the fields of a run's config.json that decide what a gated task's JITI or `always` does: a gate's
 # choices hold only for the policy, critic and JITI settings its validation runs used
 AGENT_FIELDS = ("policy", "policy_act", "critic", "jiti")
-INTERVENTION_BUDGET = 0.4  # issue 7's bound on JITI: at most 40% of `always`'s interventions
+INTERVENTION_BUDGET = 0.4  # the bound on JITI: at most 40% of `always`'s interventions
 
 
 def _run(path: str | os.PathLike, mode: str) -> tuple[dict[str, Any], dict[tuple[str, int], dict[str, Any]]]:
@@ -158,7 +153,7 @@ def task_gate(
     gate records under "agent". A task runs JITI where JITI made more episodes elegant than it spoiled, and with
     `always_run` it may instead re-rank every decision where `always` did better still, as long as the
     suite's interventions stay within `budget` times `always`'s (JITI's promise is to intervene rarely:
-    issue 7 holds it to 40%).
+    the recipe holds it to 40%).
     """
     base_config, base = _run(base_run, "base")
     paths = {"jiti": jiti_run, **({} if always_run is None else {"always": always_run})}
