@@ -20,7 +20,7 @@ import io
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict
 from typing import Any
 
 import torch
@@ -31,6 +31,7 @@ from tqdm.auto import tqdm
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, library_versions
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.settings import with_overrides
 from critics.artifact import atomic_torch_save, save_critic
 from critics.config import TrainConfig
 from critics.data import TransitionData, load_transitions, make_replay_buffer
@@ -202,13 +203,10 @@ def train_critic(
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
     steps_per_second (of this invocation), and final (the last logged value of every loss and diagnostic).
     """
-    names = {f.name for f in fields(TrainConfig)} - {"paths"}
-    unknown = sorted(set(settings) - names)
-    if unknown:
-        raise UserInputError(f"train-critic: unknown settings {unknown}; expected some of: {', '.join(sorted(names))}")
     if "hidden" in settings:
         settings["hidden"] = [int(h) for h in settings["hidden"]]
-    cfg = replace(config or TrainConfig(), paths=[os.path.abspath(p) for p in paths], **settings)
+    paths = [os.path.abspath(p) for p in paths]
+    cfg = with_overrides(config or TrainConfig(), {**settings, "paths": paths}, "train-critic")
     cfg.validate()
     os.makedirs(out, exist_ok=True)
     ckpt_path = os.path.join(out, CHECKPOINT_FILE)

@@ -192,7 +192,7 @@ def test_resume_drops_a_partial_last_line(runs):
 
 
 def test_bad_arguments_are_user_errors(tmp_path):
-    with pytest.raises(UserInputError, match="evaluation settings \\['windw'\\] unknown"):
+    with pytest.raises(UserInputError, match="evaluation: field 'windw' unknown; expected one of: "):
         evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), out=tmp_path, episodes=1, windw=3)
     with pytest.raises(UserInputError, match="episodes"):
         evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), out=tmp_path, episodes=0)

@@ -3,12 +3,12 @@ JITI's own settings nested as a `JITIConfig` (docs/design.md, configuration)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from typing import Any
 
 from base_suites.env import ObsMode
 from base_suites.runtime.errors import UserInputError, unknown_choice
-from base_suites.runtime.settings import index_list, nested, setting
+from base_suites.runtime.settings import index_list, nested, setting, with_overrides
 from elegant.intervention.config import JITIConfig
 from elegant.policies.bc_config import DEFAULT_MODES
 from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, PolicyAct
@@ -59,19 +59,11 @@ class EvalConfig:
 
     def with_settings(self, **settings: Any) -> EvalConfig:
         """This config with `settings` replaced: names of `EvalConfig` fields or of `JITIConfig` fields
-        (mode, window, ...); any other name is refused in one line listing both."""
-        own = {f.name for f in fields(EvalConfig)} - {"jiti"}
+        (mode, window, ...); any other name is refused in one line."""
         jiti_names = set(JITIConfig.settings())
-        unknown = sorted(set(settings) - own - jiti_names)
-        if unknown:
-            raise UserInputError(
-                f"evaluation settings {unknown} unknown; expected some of: {', '.join(sorted(own | jiti_names))}"
-            )
         jiti = {k: v for k, v in settings.items() if k in jiti_names}
-        mine = {k: v for k, v in settings.items() if k in own}
-        if mine.get("init_states") is not None:
-            mine["init_states"] = tuple(int(i) for i in mine["init_states"])
-        return replace(self, jiti=replace(self.jiti, **jiti) if jiti else self.jiti, **mine)
+        mine = {k: v for k, v in settings.items() if k not in jiti_names}
+        return with_overrides(self, {**mine, **({"jiti": jiti} if jiti else {})}, "evaluation")
 
 
 @dataclass(frozen=True)
@@ -132,14 +124,7 @@ class RolloutConfig:
 
     def with_settings(self, **settings: Any) -> RolloutConfig:
         """This config with `settings` (names of its fields) replaced; other names are refused in one line."""
-        names = {f.name for f in fields(RolloutConfig)}
-        unknown = sorted(set(settings) - names)
-        if unknown:
-            raise UserInputError(f"rollout settings {unknown} unknown; expected some of: {', '.join(sorted(names))}")
-        for key in ("explore_at", "init_states"):
-            if settings.get(key) is not None:
-                settings[key] = tuple(int(i) for i in settings[key])
-        return replace(self, **settings)
+        return with_overrides(self, settings, "rollouts")
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -50,6 +50,7 @@ from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_workers
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.metrics import lifelong_metrics
 from elegant.evaluation.runner import evaluate
@@ -206,11 +207,7 @@ def run_lifelong(
     mixture components. `workers`: processes running each evaluation's episodes (`elegant.evaluate`).
     Writes OUT as the module docstring describes and returns the content of OUT/lifelong.json.
     """
-    names = {f.name for f in fields(LifelongConfig)}
-    unknown = sorted(set(settings) - names)
-    if unknown:
-        raise UserInputError(f"lifelong: unknown settings {unknown}; expected some of: {', '.join(sorted(names))}")
-    cfg = replace(config or LifelongConfig(), **settings)
+    cfg = with_overrides(config or LifelongConfig(), settings, "lifelong")
     epochs, eval_every, episodes, seed = cfg.epochs, cfg.eval_every, cfg.episodes, cfg.seed
     max_steps, modes = cfg.max_steps, cfg.modes
     workers = check_workers(workers)

@@ -92,15 +92,6 @@ class JITIConfig:
         """The names of the settings, in declaration order (mode first)."""
         return tuple(f.name for f in fields(cls))
 
-    @classmethod
-    def from_settings(cls, settings: dict[str, Any] | None = None, **overrides: Any) -> JITIConfig:
-        """A config from keyword settings, refusing names it does not have (one line listing its own)."""
-        merged = {**(settings or {}), **overrides}
-        unknown = sorted(set(merged) - set(cls.settings()))
-        if unknown:
-            raise UserInputError(f"jiti settings {unknown} unknown; expected some of: {', '.join(cls.settings())}")
-        return cls(**merged)
-
     def record(self) -> dict[str, Any]:
         """The settings as run configs record them (numbers as numbers, in the historical key order)."""
         return {

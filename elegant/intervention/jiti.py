@@ -33,6 +33,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.settings import with_overrides
 from elegant.intervention.config import JITIConfig
 from elegant.intervention.selectors import make_selector
 from elegant.intervention.triggers import Moment, make_trigger
@@ -159,7 +160,7 @@ class JITI:
         **settings: Any,
     ) -> None:
         cfg = config or JITIConfig()
-        cfg = JITIConfig.from_settings({**cfg.record(), **settings}) if settings else cfg
+        cfg = with_overrides(cfg, settings, "JITI") if settings else cfg
         if critic is None and cfg.mode not in ("base", "random"):
             raise UserInputError(
                 f"JITI mode {cfg.mode!r} needs a critic; only modes 'base' and 'random' run without one"

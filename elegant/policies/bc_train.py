@@ -21,7 +21,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Collection, Sequence
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
@@ -31,6 +31,7 @@ from tqdm import tqdm
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.settings import with_overrides
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
@@ -209,13 +210,7 @@ def train_policy(
     num_demos, num_samples, tasks, seconds. `on_epoch_end` receives {"epoch", "nll"} after each epoch's
     checkpoint is on disk (for logging; an exception raised there stops training like a crash would).
     """
-    names = {f.name for f in fields(BCConfig)}
-    unknown = sorted(set(settings) - names)
-    if unknown:
-        raise UserInputError(f"train_policy: unknown settings {unknown}; expected some of: {', '.join(sorted(names))}")
-    if "hidden" in settings:
-        settings["hidden"] = tuple(settings["hidden"])
-    cfg = replace(config or BCConfig(), **settings)
+    cfg = with_overrides(config or BCConfig(), settings, "train_policy")
     tune = fine_tuning or FineTuning()
     tasks, features, init_from, snapshot_epochs = tune.tasks, tune.features, tune.init_from, tune.snapshot_epochs
     cfg.validate()
