@@ -20,11 +20,13 @@ import numpy as np
 from annotations.dataset import Demo, DemoWriter
 from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
+from base_suites.experts import knob_rates, parse_quality
 from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import changed_fields
 from base_suites.runtime.jobs import check_picklable, check_workers, in_order, run_jobs
 from base_suites.runtime.seeds import derive_seed
+from base_suites.runtime.settings import setting, with_overrides
 
 DEMO_HORIZON_FACTOR = 2
 
@@ -298,26 +300,46 @@ class _ExpertSource:
         }
 
 
+@dataclass(frozen=True)
+class DemoConfig:
+    """What `elegant demos` records: the scripted expert's episodes per task, their execution quality (a
+    preset or knob probabilities, stored per episode in its `knobs` attribute) and the seed."""
+
+    episodes: int = setting(50, "episodes per task")
+    quality: str | Mapping[str, float] = setting(
+        "clean",
+        "clean, mixed, or knob=prob,... (knobs: collide, drop, misplace, tilt, wrong_order, jerky, regrasp)",
+        parse=parse_quality,
+    )
+    seed: int = setting(0, "the expert's and the scenes' seed")
+
+    def __post_init__(self) -> None:
+        if not int(self.episodes) >= 1:
+            raise UserInputError(f"demos: episodes must be >= 1, got {self.episodes}")
+        if not int(self.seed) >= 0:
+            raise UserInputError(f"demos: seed must be >= 0, got {self.seed}")
+        knob_rates(self.quality)
+
+
 def collect_demos(
     suite: str,
     tasks: Sequence[int] | None,
-    episodes: int,
     out: str,
+    config: DemoConfig | None = None,
     *,
-    quality: str | Mapping[str, float] = "clean",
-    seed: int = 0,
     resume: bool = False,
     progress: bool = True,
     workers: int = 1,
+    **settings: Any,
 ) -> dict[str, Any]:
-    """Roll out the scripted expert `episodes` times per task and write the demos file `out` (`workers`
-    processes side by side; the file does not depend on it).
+    """Roll out the scripted expert on every task of `tasks` of `suite` (None: all) as `config` says
+    (default: `DemoConfig`'s defaults; keyword `settings` override its fields) and write the demos file
+    `out` (`workers` processes side by side; the file does not depend on it).
 
     Returns a summary: demos written, success rate, per-knob rates, per-task success.
     """
-    from base_suites.experts import knob_rates
-
-    knob_rates(quality)  # validate before any work
+    cfg = with_overrides(config or DemoConfig(), settings, "demos")
+    episodes, quality, seed = cfg.episodes, cfg.quality, cfg.seed
     # Demos may run longer than the evaluation horizon: sloppy executions (undo, regrasp) take time.
     demos_of = Collection(
         suite,

@@ -97,7 +97,9 @@ def main() -> dict:
             demos = os.path.join(args.out, f"{suite}.hdf5")
             annotated = os.path.join(args.out, f"{suite}.annotated.hdf5")
             if not os.path.exists(demos):
-                collect_demos(suite, tasks, args.episodes, demos, quality=args.quality, seed=args.seed, resume=True)
+                collect_demos(
+                    suite, tasks, demos, episodes=args.episodes, quality=args.quality, seed=args.seed, resume=True
+                )
             if not os.path.exists(annotated):
                 annotate_file(demos, annotated)
             paths.append(annotated)

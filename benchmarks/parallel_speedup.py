@@ -51,8 +51,8 @@ def main() -> None:
             collect_demos(
                 args.suite,
                 tasks,
-                args.episodes,
                 files[workers],
+                episodes=args.episodes,
                 quality="mixed",
                 seed=args.seed,
                 progress=False,

@@ -93,34 +93,29 @@ def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
 
 
 def _demos_args(p: argparse.ArgumentParser) -> None:
+    from annotations.collect import DemoConfig
+    from base_suites.runtime.settings import add_settings_arguments
+
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
-    p.add_argument("--episodes", type=int, default=50, help="episodes per task")
-    p.add_argument(
-        "--quality",
-        default="clean",
-        help="clean, mixed, or knob=prob,... (knobs: collide, drop, misplace, tilt, wrong_order, jerky, regrasp)",
-    )
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true", help="continue an interrupted file")
+    add_settings_arguments(p, DemoConfig)
     _workers_arg(p)
 
 
 @command("demos", "roll out scripted experts and write a LIBERO-layout HDF5 demos file")(_demos_args)
 def _demos(args: argparse.Namespace) -> dict:
-    from annotations.collect import collect_demos
-    from base_suites.experts import parse_quality
+    from annotations.collect import DemoConfig, collect_demos
+    from base_suites.runtime.settings import settings_from_args
 
     return collect_demos(
         args.suite,
         _task_list(args.tasks),
-        args.episodes,
         args.out,
-        quality=parse_quality(args.quality),
-        seed=args.seed,
         resume=args.resume,
         workers=args.workers,
+        **settings_from_args(args, DemoConfig),
     )
 
 

@@ -86,13 +86,13 @@ def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int
             collect_demos(
                 suite,
                 tasks,
-                cfg.demos,
                 demos[suite],
-                quality=cfg.quality,
-                seed=cfg.seed,
                 resume=True,
                 progress=progress,
                 workers=workers,
+                episodes=cfg.demos,
+                quality=cfg.quality,
+                seed=cfg.seed,
             )
         if not os.path.exists(annotated[suite]):
             say(f"annotate {suite}: ITC labels by replaying the demos in the simulator")

@@ -390,7 +390,9 @@ def test_misplace_sets_the_object_down_beside_its_container_and_is_recorded_at_t
 
 def _collect(tmp_path, name, **kw):
     out = str(tmp_path / name)
-    summary = collect.collect_demos("libero_object", [0], 2, out, quality={"tilt": 0.5}, seed=4, progress=False, **kw)
+    summary = collect.collect_demos(
+        "libero_object", [0], out, episodes=2, quality={"tilt": 0.5}, seed=4, progress=False, **kw
+    )
     return out, summary
 
 
@@ -414,8 +416,8 @@ def test_demos_file_layout_and_interrupted_resume_matches_uninterrupted(tmp_path
         collect.collect_demos(
             "libero_object",
             [0],
-            3,
             str(tmp_path / "resumed.hdf5"),
+            episodes=3,
             quality={"tilt": 0.5},
             seed=4,
             progress=False,

@@ -28,7 +28,7 @@ SETTINGS = {"epochs": 2, "eval_every": 1, "episodes": 1, "seed": 0, "max_steps":
 @pytest.fixture(scope="module")
 def demos(tmp_path_factory) -> str:
     path = str(tmp_path_factory.mktemp("demos") / "demos.hdf5")
-    collect_demos(SUITE, TASKS, 1, path, quality="clean", seed=0, progress=False)
+    collect_demos(SUITE, TASKS, path, episodes=1, quality="clean", seed=0, progress=False)
     return path
 
 

@@ -147,8 +147,8 @@ def test_demos_and_their_annotation_do_not_depend_on_the_number_of_workers(tmp_p
         collect_demos(
             "libero_object",
             [0, 1],
-            2,
             demos,
+            episodes=2,
             quality={"tilt": 0.5, "collide": 0.5},
             seed=2,
             progress=False,

@@ -90,7 +90,8 @@ def index_list(text: str) -> tuple[int, ...]:
 def _bare(annotation: Any) -> Any:
     """The annotation without `| None`."""
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
-        (annotation,) = [a for a in typing.get_args(annotation) if a is not type(None)]
+        members = [a for a in typing.get_args(annotation) if a is not type(None)]
+        return members[0] if len(members) == 1 else annotation
     return annotation
 
 
@@ -164,11 +165,11 @@ def _add_option(
         switch = flag or "--" + name
         parser.add_argument(switch, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_text)
         return
-    kind, choices = _option(annotation)
+    kind, choices = (f.metadata["parse"], None) if f.metadata.get("parse") else _option(annotation)
     parser.add_argument(
         flag or "--" + name,
         dest=dest,
-        type=f.metadata.get("parse") or kind,
+        type=kind,
         choices=choices,
         default=None,
         metavar=f.metadata.get("metavar") or (None if choices else f.name.upper()),
