@@ -26,6 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from base_suites._libero import libero_modules
+from base_suites.control import PHYSICS, fast_control_step
 from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.sim_view import SimView
@@ -65,9 +66,13 @@ class LiberoEnv(gym.Env):
         perturbation: Sequence[Perturbation] = (),
         settle_steps: int = 10,
         camera_size: int = 128,
+        physics: str = "fast",
     ) -> None:
         if obs not in OBS_MODES:
             raise unknown_choice("observation mode", obs, OBS_MODES)
+        if physics not in PHYSICS:
+            raise unknown_choice("physics", physics, PHYSICS)
+        self.physics = physics
         self.perturbations = list(perturbation)
         plan = BuildPlan(task, task.language)
         for p in self.perturbations:
@@ -165,15 +170,12 @@ class LiberoEnv(gym.Env):
         self._clear_solver_state()
         for p in self.perturbations:
             p.after_reset(self.domain, self._episode_seed)
-        raw = None
         for _ in range(self.settle_steps):
-            raw, _, _, _ = self._env.step(SETTLE_ACTION)
-        if raw is None:
-            raw = self.domain._get_observations(force_update=True)
+            self._control_step(SETTLE_ACTION)
         self.domain.sim.forward()  # body poses in step with qpos (see step())
-        self._last_raw = raw
+        self._last_raw = self._camera_observations()
         self._steps = 0
-        return self._observation(raw), self._info(bool(self._env.check_success()))
+        return self._observation(self._last_raw), self._info(bool(self._env.check_success()))
 
     def _clear_solver_state(self) -> None:
         data = self.domain.sim.data._data
@@ -184,16 +186,26 @@ class LiberoEnv(gym.Env):
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(7), -1.0, 1.0)
-        raw, _, done, _ = self._env.step(action)
-        # robosuite leaves body poses one physics substep behind the integrated qpos; refresh them so
+        success = self._control_step(action)
+        # MuJoCo's step leaves body poses one physics substep behind the integrated qpos; refresh them so
         # observations and constraint checks match a replay from the stored MuJoCo state exactly.
         self.domain.sim.forward()
-        self._last_raw = raw
+        self._last_raw = self._camera_observations()
         self._steps += 1
-        success = bool(done)
         terminated = success
         truncated = (not terminated) and self._steps >= self.max_steps
-        return self._observation(raw), float(success), terminated, truncated, self._info(success)
+        return self._observation(self._last_raw), float(success), terminated, truncated, self._info(success)
+
+    def _control_step(self, action: np.ndarray) -> bool:
+        """One control step on the chosen physics path (`base_suites.control`); whether the goal holds."""
+        if self.physics == "fast":
+            return fast_control_step(self.domain, action)
+        _, _, done, _ = self._env.step(action)
+        return bool(done)
+
+    def _camera_observations(self) -> dict[str, np.ndarray]:
+        """robosuite's observations, rendered from the current state, when an observation mode has images."""
+        return self.domain._get_observations(force_update=True) if self.obs_mode != "lowdim" else {}
 
     def render(self) -> np.ndarray:
         if self.obs_mode == "lowdim":
@@ -343,10 +355,12 @@ def make_env(
     perturbation: str | Perturbation | Sequence[Perturbation] | None = None,
     settle_steps: int = 10,
     camera_size: int = 128,
+    physics: str = "fast",
 ) -> LiberoEnv:
     """Build one LIBERO / LIBERO-PRO task as a gymnasium env.
 
     `perturbation` takes operators or a string such as "init:3,language@shipped" (axis[:seed][@mode]).
+    `physics`: "fast" (the default) or "robosuite", the same MuJoCo states either way (`base_suites.control`).
     """
     if isinstance(perturbation, str) or perturbation is None:
         perturbations = parse_perturbations(perturbation, default_seed=seed or 0)
@@ -363,4 +377,5 @@ def make_env(
         perturbation=perturbations,
         settle_steps=settle_steps,
         camera_size=camera_size,
+        physics=physics,
     )
