@@ -170,10 +170,11 @@ class LiberoEnv(gym.Env):
         self._clear_solver_state()
         for p in self.perturbations:
             p.after_reset(self.domain, self._episode_seed)
+        raw = None
         for _ in range(self.settle_steps):
-            self._control_step(SETTLE_ACTION)
+            raw = self._control_step(SETTLE_ACTION)[1]
         self.domain.sim.forward()  # body poses in step with qpos (see step())
-        self._last_raw = self._camera_observations()
+        self._last_raw = raw if raw is not None else self._camera_observations()
         self._steps = 0
         return self._observation(self._last_raw), self._info(bool(self._env.check_success()))
 
@@ -186,22 +187,24 @@ class LiberoEnv(gym.Env):
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(7), -1.0, 1.0)
-        success = self._control_step(action)
+        success, raw = self._control_step(action)
         # MuJoCo's step leaves body poses one physics substep behind the integrated qpos; refresh them so
         # observations and constraint checks match a replay from the stored MuJoCo state exactly.
         self.domain.sim.forward()
-        self._last_raw = self._camera_observations()
+        self._last_raw = raw if raw is not None else self._camera_observations()
         self._steps += 1
         terminated = success
         truncated = (not terminated) and self._steps >= self.max_steps
         return self._observation(self._last_raw), float(success), terminated, truncated, self._info(success)
 
-    def _control_step(self, action: np.ndarray) -> bool:
-        """One control step on the chosen physics path (`base_suites.control`); whether the goal holds."""
+    def _control_step(self, action: np.ndarray) -> tuple[bool, dict[str, np.ndarray] | None]:
+        """One control step on the chosen physics path (`base_suites.control`): whether the goal holds, and
+        robosuite's observations where its path made them (its images show the state before the refresh
+        of body poses; the fast path renders after it, as a replay of the stored state does)."""
         if self.physics == "fast":
-            return fast_control_step(self.domain, action)
-        _, _, done, _ = self._env.step(action)
-        return bool(done)
+            return fast_control_step(self.domain, action), None
+        raw, _, done, _ = self._env.step(action)
+        return bool(done), raw
 
     def _camera_observations(self) -> dict[str, np.ndarray]:
         """robosuite's observations, rendered from the current state, when an observation mode has images."""
