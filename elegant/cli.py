@@ -171,7 +171,7 @@ def _annotate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="annotated HDF5 (default: DEMOS with .annotated.hdf5)")
     p.add_argument("--labels", help="human labels CSV: demo,start_frame,end_frame,criterion,label")
     p.add_argument("--specs", help="directory of per-task YAML spec overrides (<suite>/<task>.yaml)")
-    p.add_argument("--gamma", type=float, default=0.99, help="discount of the Monte-Carlo return")
+    p.add_argument("--gamma", type=float, help="discount of the Monte-Carlo return (default: annotate_file's)")
     p.add_argument("--export-labels", help="also write the final segment labels as CSV here")
     p.add_argument("--resume", action="store_true")
     _workers_arg(p)
@@ -187,9 +187,9 @@ def _annotate(args: argparse.Namespace) -> dict:
         out,
         labels_csv=args.labels,
         overrides_dir=args.specs,
-        gamma=args.gamma,
         resume=args.resume,
         workers=args.workers,
+        **({} if args.gamma is None else {"gamma": args.gamma}),
     )
     if args.export_labels:
         export_segment_labels(out, args.export_labels)
