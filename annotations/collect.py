@@ -20,7 +20,7 @@ import numpy as np
 from annotations.dataset import Demo, DemoWriter
 from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
-from base_suites.experts import knob_rates, parse_quality
+from base_suites.experts import EXPERT_VERSION, ScriptedExpert, knob_rates, parse_quality
 from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import changed_fields
@@ -276,8 +276,6 @@ class _ExpertSource:
         self.quality, self.seed = quality, seed
 
     def for_task(self, env: LiberoEnv, spec: Any) -> None:
-        from base_suites.experts import ScriptedExpert
-
         self.expert = ScriptedExpert(env, quality=self.quality, seed=derive_seed(self.seed, spec.index))
 
     def start(self, spec: Any, episode: int) -> tuple[int, int]:
@@ -291,8 +289,6 @@ class _ExpertSource:
         return self.expert(obs)
 
     def episode_attrs(self) -> dict[str, Any]:
-        from base_suites.experts import EXPERT_VERSION
-
         return {
             "knobs": dict(self.expert.knobs),
             "knob_events": list(self.expert.events),

@@ -1,13 +1,13 @@
 """LIBERO-PRO perturbations as seeded, composable operators.
 
-Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved
-0.2-0.3 m; or, `init@nudge`, up to 2 cm: fresh starts, not a robustness test), `language` (paraphrased
-or target-swapped instruction) and `env` (floor, wall and table swap). Each operator acts at the stage where the
-change belongs: before the env is built (which BDDL
-file, which instruction, which scene textures), right after it is built (colours), or after every reset
-(positions). The package's shipped LIBERO-PRO variants are used where they exist (`mode="shipped"`); by
-default new variants are generated from the seed, so the number of distinct perturbed tasks is unbounded.
-What each operator did is returned by `describe()` and recorded in `info` and episode metadata.
+Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved 0.2-0.3 m;
+or, `init@nudge`, up to 2 cm: fresh starts, not a robustness test), `language` (paraphrased or target-swapped
+instruction) and `env` (floor, wall and table swap). Each operator acts at the stage where the change belongs:
+before the env is built (which BDDL file, which instruction, which scene textures), right after it is built
+(colours), or after every reset (positions). The package's shipped LIBERO-PRO variants are used where they
+exist (`mode="shipped"`); by default new variants are generated from the seed, so the number of distinct
+perturbed tasks is unbounded. What each operator did is returned by `describe()` and recorded in `info` and
+episode metadata.
 """
 
 from __future__ import annotations

@@ -187,12 +187,11 @@ def _preference_summary(gaps: np.ndarray) -> dict[str, Any]:
 def pair_preference(critic: Scorer, pairs: Sequence[Pair]) -> dict[str, Any]:
     """How often Q prefers the clean continuation to the knob one from the same state.
 
-    A side's score is the mean Q of its steps (both sides over the length of the shorter); the clean side wins a pair
-    only when it scores strictly
-    higher (a tie is no preference). A critic that has learnt elegance should prefer what the clean
-    expert did; issue 5 asks for >= 80% of pairs. Returns pairs, clean_wins, clean_preferred (the
-    fraction; None without pairs), mean_gap (clean minus knob score), and the same per knob.
-    `critic` must already be bound to the pairs' task (e.g. `load(dir).bind(pairs.metadata)`).
+    A side's score is the mean Q of its steps (both sides over the length of the shorter); the clean side wins
+    a pair only when it scores strictly higher (a tie is no preference). A critic that has learnt elegance
+    should prefer what the clean expert did; issue 5 asks for >= 80% of pairs. Returns pairs, clean_wins,
+    clean_preferred (the fraction; None without pairs), mean_gap (clean minus knob score), and the same per
+    knob. `critic` must already be bound to the pairs' task (e.g. `load(dir).bind(pairs.metadata)`).
     """
     gaps = np.array([_gap(critic, p) for p in pairs], dtype=np.float64)
     knob_of = np.array([p.knob for p in pairs], dtype=object)

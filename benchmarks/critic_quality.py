@@ -1,9 +1,9 @@
 """Held-out quality of the elegance critic: train on annotated files, rank the actions of others.
 
 Trains a Cal-QL critic on the TRAIN files (annotated HDF5, e.g. scripted-expert demos labelled by
-`elegant annotate`), then reports `critics.evaluate_critic` on the HELDOUT files: the AUROC of Q separating dataset
-actions
-in elegant 25-frame segments from those in segments that violate a criterion, overall and per criterion.
+`elegant annotate`), then reports `critics.evaluate_critic` on the HELDOUT files: the AUROC of Q separating
+dataset actions in elegant 25-frame segments from those in segments that violate a criterion, overall and
+per criterion.
 With --reference it also fits a network of the critic's size by plain regression on the training
 demos' discounted returns (Monte Carlo, the same gamma and reward) and evaluates it the same way: what
 the data supports for ranking held-out actions, without any offline-RL machinery. A critic near that
@@ -11,7 +11,7 @@ reference is limited by its data, not by Cal-QL.
 Last line: one JSON object {"train": training summary, "heldout": evaluation[, "reference": evaluation]}.
 
     python benchmarks/critic_quality.py TRAIN.hdf5 [TRAIN2.hdf5 ...] --heldout HELDOUT.hdf5 [...] [--steps 20000]
-    [--out DIR]
+        [--out DIR] [every `elegant train-critic` option]
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ import tempfile
 import torch
 from torchrl.objectives.value.functional import reward2go
 
+from base_suites.runtime.settings import add_settings_arguments, settings_from_args, with_overrides
 from critics import (
-    BACKUPS,
-    REWARDS,
     Critic,
+    TrainConfig,
     TwinQNetwork,
     evaluate_critic,
     load_transitions,
@@ -62,18 +62,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("train", nargs="+", help="annotated HDF5 files to train on")
     parser.add_argument("--heldout", nargs="+", required=True, help="annotated HDF5 files to evaluate on")
-    parser.add_argument("--steps", type=int, default=20_000)
-    parser.add_argument("--batch-size", type=int, default=256)
-    parser.add_argument("--hidden", type=int, nargs="+", default=[256, 256])
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--gamma", type=float, help="the critic's discount (default: the annotation's)")
-    parser.add_argument("--cql-weight", type=float, default=5.0)
-    parser.add_argument(
-        "--reward", choices=REWARDS, default="step", help="violation penalty per step or per 25-frame window"
-    )
-    parser.add_argument(
-        "--backup", choices=BACKUPS, default="policy", help="the TD target's next action (see CalQLLoss)"
-    )
+    add_settings_arguments(parser, TrainConfig, exclude=("paths",))
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--out", help="critic directory to keep (default: a temporary one)")
     parser.add_argument("--no-progress", action="store_true")
@@ -81,27 +70,16 @@ def main() -> None:
         "--reference", action="store_true", help="also evaluate a plain regression on Monte-Carlo returns"
     )
     args = parser.parse_args()
+    config = with_overrides(TrainConfig(), settings_from_args(args, TrainConfig, exclude=("paths",)), "critic_quality")
     torch.set_num_threads(args.threads)
 
     with tempfile.TemporaryDirectory(prefix="critic_quality_") as tmp:
         out = args.out or tmp
-        summary = train_critic(
-            args.train,
-            out,
-            steps=args.steps,
-            batch_size=args.batch_size,
-            hidden=args.hidden,
-            seed=args.seed,
-            gamma=args.gamma,
-            cql_weight=args.cql_weight,
-            reward=args.reward,
-            backup=args.backup,
-            progress=not args.no_progress,
-        )
+        summary = train_critic(args.train, out, config, progress=not args.no_progress)
         result = {"train": summary, "heldout": evaluate_critic(out, args.heldout)}
     if args.reference:
         reference = mc_regression_reference(
-            args.train, args.gamma, args.reward, args.steps, args.batch_size, args.hidden, args.seed
+            args.train, config.gamma, config.reward, config.steps, config.batch_size, config.hidden, config.seed
         )
         result["reference"] = evaluate_critic(reference, args.heldout)
     print(json.dumps(result))

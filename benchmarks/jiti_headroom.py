@@ -5,12 +5,12 @@ candidates from the base policy is executed once and the base policy finishes th
 it prints one line per decision point, one character per candidate (candidate 0 = the base action):
 E elegant success, . not, with the critic's choice marked by brackets; then the summary (headroom,
 the critic's hit rate against a random eligible candidate, harm on elegant episodes) as one JSON object
-on the last line; with --out, the branches also go to that JSON and a PNG beside it. Costly: about N x (decision
-points) episodes per start.
+on the last line; with --out, the branches also go to that JSON and a PNG beside it. Costly: about
+N x (decision points) episodes per start.
 
-    python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0 [--episodes 4 | --episodes
-    1,10,12]
-        [--seed 3] [--every 15] [--first 10] [--candidates 16] [--trust-radius 0.3] [--out headroom.json]
+    python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0
+        [--episodes 4 | --episodes 1,10,12] [--seed 3] [--every 15] [--first 10] [--candidates 16]
+        [--trust-radius 0.3] [--out headroom.json]
 """
 
 from __future__ import annotations

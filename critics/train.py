@@ -203,8 +203,6 @@ def train_critic(
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
     steps_per_second (of this invocation), and final (the last logged value of every loss and diagnostic).
     """
-    if "hidden" in settings:
-        settings["hidden"] = [int(h) for h in settings["hidden"]]
     paths = [os.path.abspath(p) for p in paths]
     cfg = with_overrides(config or TrainConfig(), {**settings, "paths": paths}, "train-critic")
     cfg.validate()

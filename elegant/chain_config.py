@@ -15,7 +15,6 @@ that says where each old field lives now and what an old chain that lacked it ra
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from dataclasses import asdict, dataclass, replace
@@ -25,7 +24,7 @@ from typing import Any
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.migrations import added_later
-from base_suites.runtime.settings import index_list, load_config, nested, setting, with_overrides
+from base_suites.runtime.settings import check_derived, index_list, load_config, nested, setting, with_overrides
 from critics.config import TrainConfig
 from elegant.evaluation.config import EvalConfig, RolloutConfig
 from elegant.intervention.config import JITIConfig
@@ -109,7 +108,7 @@ class ChainConfig:
                 raise UserInputError(f"chain {name} must be >= 1, got {getattr(self, name)}")
         if self.critic_rollouts < 0:
             raise UserInputError(f"chain critic_rollouts must be >= 0, got {self.critic_rollouts}")
-        _check_derived(self)
+        check_derived(self, "chain")
         for stage, check in (("policy", self.policy.validate), ("critic", self.critic.validate)):
             try:
                 check()
@@ -152,27 +151,6 @@ class ChainConfig:
     def record(self) -> dict[str, Any]:
         """The settings as chain.json stores them (JSON types)."""
         return json.loads(json.dumps(asdict(self)))
-
-
-def _check_derived(config: Any, where: str = "chain") -> None:
-    """Refuse a stage setting the chain sets itself (`nested(..., derived=...)`) unless it is left at its
-    default: the chain would silently replace it."""
-    for f in dataclasses.fields(config):
-        derived = f.metadata.get("derived")
-        if derived is None:
-            continue
-        stage = getattr(config, f.name)
-        fresh = f.default_factory()
-        for path in derived:
-            *parents, name = path.split(".")
-            mine, default = stage, fresh
-            for parent in parents:
-                mine, default = getattr(mine, parent), getattr(default, parent)
-            if getattr(mine, name) != getattr(default, name):
-                raise UserInputError(
-                    f"{where}: {f.name}.{path} is set by the chain itself (it is {getattr(mine, name)!r}); leave it "
-                    "at its default"
-                )
 
 
 def load_recipe(path: str | os.PathLike) -> ChainConfig:
@@ -273,7 +251,8 @@ def check_chain_settings(out: str, config: ChainConfig) -> None:
         elif isinstance(stored, dict) and "format" not in stored:
             stored = migrate_flat_record(stored)
         else:
-            raise UserInputError(f"{path}: field 'format' is {stored.get('format')!r}; expected {CHAIN_FORMAT!r}")
+            found = stored.get("format") if isinstance(stored, dict) else type(stored).__name__
+            raise UserInputError(f"{path}: field 'format' is {found!r}; expected {CHAIN_FORMAT!r}")
         changed = changed_fields(stored, settings)
         if changed:
             raise UserInputError(

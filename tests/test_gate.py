@@ -83,9 +83,9 @@ def test_always_is_chosen_where_it_does_best_until_the_suite_spends_its_interven
     # without a binding budget always wins wherever it made more elegant; the tie on task 2 keeps jiti
     roomy = task_gate(base, jiti, always, budget=1.0)
     assert modes(roomy) == {tasks[0]: "always", tasks[1]: "always", tasks[2]: "jiti", tasks[3]: "always"}
-    # 40% of always's 20 per episode is 8: (20 + 2 + 2 + 0) / 4 = 6 fits one always task, the one that gains most over
-    # its fallback
-    # per saved intervention (task 0: 2 over jiti per 18 saved, task 1: 1 per 18, task 3: 2 over base per 20)
+    # 40% of always's 20 per episode is 8: (20 + 2 + 2 + 0) / 4 = 6 fits one always task, the one that gains
+    # most over its fallback per saved intervention (task 0: 2 over jiti per 18 saved, task 1: 1 per 18,
+    # task 3: 2 over base per 20)
     tight = task_gate(base, jiti, always)
     assert tight["interventions_limit"] == pytest.approx(8.0) and tight["budget"] == 0.4
     assert modes(tight) == {tasks[0]: "always", tasks[1]: "jiti", tasks[2]: "jiti", tasks[3]: "base"}

@@ -435,11 +435,10 @@ WAY_OUT_DIRECTIONS = np.array([[np.cos(a), np.sin(a)] for a in np.linspace(0, 2 
 def _around_held(
     view: SimView, held: str
 ) -> tuple[np.ndarray, Callable[[np.ndarray], np.ndarray], np.ndarray, np.ndarray]:
-    """The held object's filled footprint (xy) and the test of which xy points lie over it; the filled points, above
-    its top, of whatever hangs over
-    it (an entity with a part above its top and over its footprint: an opened drawer, not a tall
-    neighbour beside it); and the points of everything else within its height band, near enough to be
-    swept through on a way out."""
+    """The held object's filled footprint (xy) and the test of which xy points lie over it; the filled
+    points, above its top, of whatever hangs over it (an entity with a part above its top and over its
+    footprint: an opened drawer, not a tall neighbour beside it); and the points of everything else within
+    its height band, near enough to be swept through on a way out."""
     own = fill_boxes(view.geom_points(held).reshape(-1, 8, 3))
     bottom, top = own[:, 2].min(), own[:, 2].max()
     footprint = own[:, :2]

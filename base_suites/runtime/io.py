@@ -11,6 +11,8 @@ import os
 import tempfile
 from typing import Any
 
+from base_suites.runtime.migrations import SAME_AS_NOW
+
 
 def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
     """Atomically replace `path` with `data` (text is UTF-8 encoded)."""
@@ -59,8 +61,6 @@ def changed_fields(
     those records' runs did; a record without the key counts as having that value. A dict value names
     settings added inside a nested record (e.g. {"jiti": {"chunk": 1}}), filled in the same way; the
     project's table of them is `base_suites.runtime.migrations`."""
-    from base_suites.runtime.migrations import SAME_AS_NOW
-
     old = dict(old) if isinstance(old, dict) else {}
     for key, value in (added or {}).items():
         if isinstance(value, dict) and isinstance(old.get(key), dict):

@@ -177,13 +177,28 @@ def _add_option(
     )
 
 
+def check_derived(config: Any, where: str) -> None:
+    """Refuse a field of a nested config that its owner sets itself (`nested(..., derived=...)`) unless it
+    is left at its default: the owner would replace it without a word. `with_overrides` refuses such a
+    field when it is given by name; this catches a nested config built with it."""
+    for f in dataclasses.fields(config):
+        for path in f.metadata.get("derived", ()):
+            mine, default = getattr(config, f.name), f.default_factory()
+            for name in path.split("."):
+                mine, default = getattr(mine, name), getattr(default, name)
+            if mine != default:
+                raise UserInputError(
+                    f"{where}: {f.name}.{path} is set by the {where} itself (it is {mine!r}); leave it at its default"
+                )
+
+
 def settings_from_args(args: argparse.Namespace, config_cls: type, exclude: tuple[str, ...] = ()) -> dict[str, Any]:
     """The fields of `config_cls` the user set on the command line, nested like the config (options left
     out stay unset)."""
+    names = {f.name for f in dataclasses.fields(config_cls)} - set(exclude)
     out: dict[str, Any] = {}
     for dest, value in vars(args).items():
-        head = dest.split(".")[0]
-        if value is None or head in exclude or head not in {f.name for f in dataclasses.fields(config_cls)}:
+        if value is None or dest.split(".")[0] not in names:
             continue
         *path, name = dest.split(".")
         node = out
@@ -218,10 +233,11 @@ def with_overrides(
 
 
 def _coerce(annotation: Any, value: Any) -> Any:
-    """A value read from YAML or JSON in the field's type: lists become tuples for tuple fields."""
-    bare = _bare(annotation)
-    if value is not None and typing.get_origin(bare) is tuple and isinstance(value, list):
-        return tuple(value)
+    """A sequence in the container its field declares (a list for `list[...]`, a tuple for `tuple[...]`),
+    whether it came from YAML, JSON or a caller: configs compare equal to the records they wrote."""
+    container = typing.get_origin(_bare(annotation))
+    if container in (list, tuple) and isinstance(value, (list, tuple)):
+        return container(value)
     return value
 
 

@@ -7,7 +7,7 @@ record `JITIConfig.record()`. A mode is a preset of a trigger (when to draw and 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal, get_args
 
 from base_suites.runtime.errors import UserInputError, unknown_choice
@@ -73,7 +73,10 @@ class JITIConfig:
             raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
         if not int(self.window) >= 1:
             raise UserInputError(f"JITI window must be >= 1, got {self.window}")
-        check_candidates(self.n_candidates)
+        if int(self.n_candidates) < 2:
+            raise UserInputError(
+                f"JITI n_candidates must be >= 2 (the base action plus alternatives), got {self.n_candidates}"
+            )
         if not (float(self.threshold) >= 0 and float(self.noise_scale) >= 0):
             raise UserInputError(
                 f"JITI threshold and noise_scale must be >= 0, got {self.threshold} and {self.noise_scale}"
@@ -93,25 +96,5 @@ class JITIConfig:
         return tuple(f.name for f in fields(cls))
 
     def record(self) -> dict[str, Any]:
-        """The settings as run configs record them (numbers as numbers, in the historical key order)."""
-        return {
-            "mode": self.mode,
-            "window": int(self.window),
-            "threshold": float(self.threshold),
-            "threshold_mode": self.threshold_mode,
-            "n_candidates": int(self.n_candidates),
-            "noise_scale": float(self.noise_scale),
-            "trust_radius": None if self.trust_radius is None else float(self.trust_radius),
-            "random_rate": float(self.random_rate),
-            "min_gain": float(self.min_gain),
-            "trigger": self.trigger,
-            "warmup": self.warmup,
-            "max_overrides": None if self.max_overrides is None else int(self.max_overrides),
-        }
-
-
-def check_candidates(n_candidates: int, setting: str = "JITI n_candidates") -> None:
-    """Refuse fewer than two candidates per decision: the base action and at least one alternative.
-    `setting` names the value in the error, as its owner (JITI, a chain) calls it."""
-    if int(n_candidates) < 2:
-        raise UserInputError(f"{setting} must be >= 2 (the base action plus alternatives), got {n_candidates}")
+        """The settings as run configs record them."""
+        return asdict(self)

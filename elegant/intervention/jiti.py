@@ -165,7 +165,7 @@ class JITI:
             raise UserInputError(
                 f"JITI mode {cfg.mode!r} needs a critic; only modes 'base' and 'random' run without one"
             )
-        if isinstance(critic, (str, bytes)) or (critic is not None and not callable(getattr(critic, "q", None))):
+        if critic is not None and not callable(getattr(critic, "q", None)):
             raise UserInputError(
                 f"JITI critic: expected a critic object with q(state, actions) (e.g. critics.load(dir)), got {critic!r}"
             )

@@ -18,9 +18,10 @@ import numpy as np
 from elegant.intervention.config import JITIConfig
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Moment:
-    """One decision as a trigger sees it."""
+    """One decision as a trigger sees it (built at every decision JITI does not re-rank outright: slots, no
+    frozen-instance checks, to keep a decision cheap)."""
 
     step: int
     q: float | None

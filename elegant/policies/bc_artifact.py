@@ -1,10 +1,9 @@
 """The trained BC policy on disk: `model.pt` (a plain state_dict) and `config.json` (everything else).
 
-config.json holds the network shape (with `chunk`, the number of actions each decision predicts), the input definition
-(task encoder with every task's state layout,
-per-task normalisation, history length), training facts and library versions, plus the SHA-256 of
-model.pt so that a pair written by different runs (an interrupted overwrite) is refused instead of
-producing nonsense actions. Both files are written atomically.
+config.json holds the network shape (with `chunk`, the number of actions each decision predicts), the input
+definition (task encoder with every task's state layout, per-task normalisation, history length), training
+facts and library versions, plus the SHA-256 of model.pt so that a pair written by different runs (an
+interrupted overwrite) is refused instead of producing nonsense actions. Both files are written atomically.
 """
 
 from __future__ import annotations
