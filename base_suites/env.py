@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from base_suites._libero import libero_modules
-from base_suites.control import PHYSICS, fast_control_step
+from base_suites.control import PHYSICS, FastControl
 from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.sim_view import SimView
@@ -73,6 +73,7 @@ class LiberoEnv(gym.Env):
         if physics not in PHYSICS:
             raise unknown_choice("physics", physics, PHYSICS)
         self.physics = physics
+        self._fast_control = FastControl()
         self.perturbations = list(perturbation)
         plan = BuildPlan(task, task.language)
         for p in self.perturbations:
@@ -202,7 +203,7 @@ class LiberoEnv(gym.Env):
         robosuite's observations where its path made them (its images show the state before the refresh
         of body poses; the fast path renders after it, as a replay of the stored state does)."""
         if self.physics == "fast":
-            return fast_control_step(self.domain, action), None
+            return self._fast_control.step(self.domain, action), None
         raw, _, done, _ = self._env.step(action)
         return bool(done), raw
 

@@ -61,3 +61,31 @@ def test_the_expert_operates_the_articulated_fixtures_alike(suite, task):
     difference would compound) gives the same states on both paths."""
     states, successes = assert_same(suite, task, expert_steps=160)
     assert len(states) > 20 and np.ptp(states[:, 1:], axis=0).max() > 0.05  # the scene moved
+
+
+def test_the_paths_can_take_over_from_each_other_mid_episode():
+    """The fast path shares robosuite's controller state (goal, cached kinematics, gripper action): handing
+    the episode back and forth every 50 steps over 300 steps gives robosuite's own states."""
+    actions = np.random.default_rng(1).uniform(-1, 1, size=(300, 7))
+    reference = trajectory("libero_goal", 0, "robosuite", actions=actions)[0]
+    env = make_env("libero_goal", 0, seed=0, physics="fast", max_steps=10**6)
+    try:
+        env.reset(seed=3, options={"init_state": 1})
+        states = []
+        for t, action in enumerate(actions):
+            env.physics = ("fast", "robosuite")[(t // 50) % 2]
+            env.step(action)
+            states.append(env.get_sim_state())
+    finally:
+        env.close()
+    np.testing.assert_array_equal(np.array(states), reference)
+
+
+def test_a_controller_other_than_liberos_is_refused_in_one_line():
+    from types import SimpleNamespace
+
+    from base_suites.arm_control import ArmControl
+    from base_suites.runtime import UserInputError
+
+    with pytest.raises(UserInputError, match="physics='robosuite'"):
+        ArmControl(SimpleNamespace(controller=object()), model=None)
