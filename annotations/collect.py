@@ -9,7 +9,6 @@ uninterrupted run would have.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -179,7 +178,7 @@ def _file_attrs(
 ) -> dict[str, Any]:
     """The new file's `data` attributes, read off the first task's env; none when an interrupted file is
     resumed (it keeps its own), so a resume builds no env before its settings are checked."""
-    if resume and os.path.exists(out + ".partial"):
+    if resume and DemoWriter.resumable(out):
         return {}
     env = make_env(suite, specs[0].index, seed=seed, max_steps=horizon(specs[0]), perturbation=perturbation)
     try:

@@ -1,15 +1,16 @@
 """Reading and writing demonstration files in the layout of `annotations.format`.
 
-Writing is crash-safe and resumable: demos go to `<out>.partial`, flushed after each demo, and the
-file is renamed to `<out>` only when the writer is closed as complete. A resumed writer reopens the
-partial file and continues after the demos it already holds.
+Writing is crash-safe and resumable (`DemoWriter`): each finished demo is durable on its own in the
+journal folder `<out>.partial/`, and `<out>` appears, assembled and read back, only when all are
+there. A resumed writer continues after the demos the journal holds.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator, Mapping
+import shutil
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from annotations.format import CRITERIA, FORMAT_VERSION, demo_index, demo_name, task_key
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.locks import output_lock
 
 _JSON_ATTRS = ("knobs", "knob_events", "perturbation", "violated", "fixture_layout", "rollout", "explored_steps")
 
@@ -65,7 +67,14 @@ def read_attrs(node: h5py.HDFObject) -> dict[str, Any]:
     out = {}
     for key, value in node.attrs.items():
         value = _decode(value)
-        if key in _JSON_ATTRS or key in ("env_args", "problem_info", "state_layouts", "annotation", "collection"):
+        if key in _JSON_ATTRS or key in (
+            "env_args",
+            "problem_info",
+            "state_layouts",
+            "state_layout",
+            "annotation",
+            "collection",
+        ):
             try:
                 value = json.loads(value) if isinstance(value, str) else value
             except json.JSONDecodeError:
@@ -135,6 +144,7 @@ class DemoFile:
             attrs=read_attrs(g),
             final_state=g["final_state"][()] if "final_state" in g else None,
         )
+        _check_arrays(f"{self.path}: data/{name}", demo)
         if "itc" in g:
             missing = [c for c in CRITERIA if c not in g["itc"]]
             if missing:
@@ -157,76 +167,203 @@ class DemoFile:
         self.close()
 
 
+def _check_arrays(where: str, demo: Demo) -> None:
+    """Refuse a demo whose arrays disagree in length or hold NaN or infinity (which would train a NaN
+    model or corrupt labels downstream), naming the field and the first bad step."""
+    steps = demo.actions.shape[0] if demo.actions.ndim == 2 else -1
+    if demo.actions.ndim != 2 or demo.actions.shape[1] != 7:
+        raise UserInputError(f"{where}/actions has shape {demo.actions.shape}; expected (steps, 7)")
+    fields = {
+        "states": demo.states,
+        "obs/state": demo.obs,
+        "next_obs/state": demo.next_obs,
+        "rewards": demo.rewards,
+        "dones": demo.dones,
+    }
+    for key, values in fields.items():
+        if values.ndim == 0 or values.shape[0] != steps:
+            raise UserInputError(f"{where}/{key} has shape {values.shape}; expected {steps} steps like actions")
+    for key, values in {"actions": demo.actions, **fields}.items():
+        bad = ~np.isfinite(values.reshape(steps, -1)).all(axis=1)
+        if bad.any():
+            raise UserInputError(f"{where}/{key} holds NaN or infinity (first at step {int(np.argmax(bad))})")
+
+
 class DemoWriter:
-    """Appends demos to `<path>.partial` and renames it to `path` on `finish()`."""
+    """Writes a demo file so that a kill or a full disk loses at most the demo in flight.
+
+    Each appended demo becomes durable on its own: a small HDF5 file in the journal directory
+    `<path>.partial/` (written under a temporary name, synced, renamed), beside `header.h5` with the
+    file's attributes. `finish()` assembles the journal into the final file under a temporary name,
+    reads every demo of it back, and only then renames it to `path` and removes the journal; a kill
+    during assembly leaves the journal whole. `resume=True` continues after the demos the journal holds
+    (a demo file that does not read back, e.g. cut off by a full disk, is dropped and written again).
+    The writer holds the output's lock (`base_suites.runtime.locks`) until `finish()` or `abandon()`,
+    so a second writer of the same file is refused."""
 
     def __init__(self, path: str | os.PathLike, file_attrs: Mapping[str, Any], *, resume: bool = False) -> None:
-        self.path = str(path)
+        self.path = os.fspath(path)
         self.partial = self.path + ".partial"
-        if resume and os.path.exists(self.partial):
-            self._h5 = h5py.File(self.partial, "a")
-        else:
-            if os.path.exists(self.partial):
+        os.makedirs(os.path.dirname(os.path.abspath(self.path)), exist_ok=True)
+        self._lock = output_lock(self.path)
+        self._lock.__enter__()
+        try:
+            if os.path.isfile(self.partial):  # a single-file partial of an earlier version
+                if resume:
+                    raise UserInputError(
+                        f"{self.partial}: an interrupted file of an earlier libero-elegant, which cannot be "
+                        "resumed; delete it and run again without --resume"
+                    )
                 os.remove(self.partial)
-            os.makedirs(os.path.dirname(os.path.abspath(self.path)), exist_ok=True)
-            self._h5 = h5py.File(self.partial, "w")
-            data = self._h5.create_group("data")
-            _write_attrs(data, {"format_version": FORMAT_VERSION, "total": 0, "state_layouts": {}, **file_attrs})
-        self._data = self._h5["data"]
-        self._layouts = read_attrs(self._data).get("state_layouts", {})
+            if resume and self.resumable(self.path):
+                self._count = self._recover()
+            else:
+                if os.path.isdir(self.partial):
+                    shutil.rmtree(self.partial)
+                os.makedirs(self.partial)
+                self._write_header({"format_version": FORMAT_VERSION, "state_layouts": {}, **file_attrs})
+                self._count = 0
+        except BaseException:
+            self._lock.__exit__(None, None, None)
+            raise
+
+    @staticmethod
+    def resumable(path: str | os.PathLike) -> bool:
+        """Whether an interrupted writer of `path` left a journal to resume (its header is written, and
+        durable, before any demo; a journal without one holds nothing and starts afresh)."""
+        return _reads(os.path.join(os.fspath(path) + ".partial", _HEADER), read_attrs)
 
     @property
     def attrs(self) -> dict[str, Any]:
         """The file's `data` attributes as written so far (a resumed file's are the first run's)."""
-        return read_attrs(self._data)
+        with h5py.File(os.path.join(self.partial, _HEADER), "r") as h5:
+            return read_attrs(h5)
 
     @property
     def count(self) -> int:
         """How many complete demos the file already holds (where a resumed run continues)."""
-        return sum(1 for n in self._data if n.startswith("demo_"))
+        return self._count
+
+    def written_attrs(self) -> Iterator[dict[str, Any]]:
+        """The attributes of the demos written so far, in order."""
+        for i in range(self._count):
+            with h5py.File(self._episode_path(i), "r") as h5:
+                yield read_attrs(h5["demo"])
 
     def write_file_attrs(self, attrs: Mapping[str, Any]) -> None:
-        _write_attrs(self._data, attrs)
+        self._write_header({**self.attrs, **attrs})
 
     def append(self, demo: Demo, state_layout: list | None = None) -> str:
-        """Write one demo (its name is assigned here) and flush it to disk."""
-        name = demo_name(self.count)
-        tmp = "_incomplete_" + name
-        if tmp in self._data:
-            del self._data[tmp]
-        g = self._data.create_group(tmp)
-        g.create_dataset("actions", data=np.asarray(demo.actions, dtype=np.float64))
-        g.create_dataset("states", data=np.asarray(demo.states, dtype=np.float64))
-        g.create_dataset("obs/state", data=np.asarray(demo.obs, dtype=np.float32))
-        g.create_dataset("next_obs/state", data=np.asarray(demo.next_obs, dtype=np.float32))
-        g.create_dataset("rewards", data=np.asarray(demo.rewards, dtype=np.float32))
-        g.create_dataset("dones", data=np.asarray(demo.dones, dtype=np.uint8))
-        if demo.final_state is not None:
-            g.create_dataset("final_state", data=np.asarray(demo.final_state, dtype=np.float64))
-        if demo.itc is not None:
-            for c in CRITERIA:
-                g.create_dataset(f"itc/{c}", data=np.asarray(demo.itc[c], dtype=bool))
-                g.create_dataset(f"itc_segments/{c}", data=np.asarray(demo.itc_segments[c], dtype=bool))
-            g.create_dataset("elegance_reward", data=np.asarray(demo.elegance_reward, dtype=np.float32))
-            g.create_dataset("mc_return", data=np.asarray(demo.mc_return, dtype=np.float32))
-        _write_attrs(g, {**demo.attrs, "num_samples": int(len(demo.actions))})
-        self._data.move(tmp, name)
-        if state_layout is not None and demo.task_key not in self._layouts:
-            self._layouts[demo.task_key] = state_layout
-            _write_attrs(self._data, {"state_layouts": self._layouts})
-        self._data.attrs["total"] = int(self._data.attrs["total"]) + len(demo.actions)
-        self._h5.flush()
+        """Write one demo (its name is assigned here) durably to the journal."""
+        name = demo_name(self._count)
+        _check_arrays(f"{self.path}: {name}", demo)
+
+        def fill(h5: h5py.File) -> None:
+            g = h5.create_group("demo")
+            g.create_dataset("actions", data=np.asarray(demo.actions, dtype=np.float64))
+            g.create_dataset("states", data=np.asarray(demo.states, dtype=np.float64))
+            g.create_dataset("obs/state", data=np.asarray(demo.obs, dtype=np.float32))
+            g.create_dataset("next_obs/state", data=np.asarray(demo.next_obs, dtype=np.float32))
+            g.create_dataset("rewards", data=np.asarray(demo.rewards, dtype=np.float32))
+            g.create_dataset("dones", data=np.asarray(demo.dones, dtype=np.uint8))
+            if demo.final_state is not None:
+                g.create_dataset("final_state", data=np.asarray(demo.final_state, dtype=np.float64))
+            if demo.itc is not None:
+                for c in CRITERIA:
+                    g.create_dataset(f"itc/{c}", data=np.asarray(demo.itc[c], dtype=bool))
+                    g.create_dataset(f"itc_segments/{c}", data=np.asarray(demo.itc_segments[c], dtype=bool))
+                g.create_dataset("elegance_reward", data=np.asarray(demo.elegance_reward, dtype=np.float32))
+                g.create_dataset("mc_return", data=np.asarray(demo.mc_return, dtype=np.float32))
+            _write_attrs(g, {**demo.attrs, "num_samples": int(len(demo.actions))})
+            if state_layout is not None:
+                _write_attrs(h5, {"task_key": demo.task_key, "state_layout": state_layout})
+
+        _durable_h5(self._episode_path(self._count), fill)
+        self._count += 1
         return name
 
     def finish(self) -> str:
-        """Close and atomically publish the file."""
-        for n in list(self._data):
-            if n.startswith("_incomplete_"):
-                del self._data[n]
-        self._h5.close()
-        os.replace(self.partial, self.path)
-        return self.path
+        """Assemble the journal into `path`, check that it reads back, publish it and remove the journal."""
+        try:
+            assembling = self.path + ".assembling"
+            attrs = self.attrs
+            layouts = dict(attrs.get("state_layouts") or {})
+            total = 0
+            with h5py.File(assembling, "w") as out:
+                data = out.create_group("data")
+                for i in range(self._count):
+                    with h5py.File(self._episode_path(i), "r") as episode:
+                        episode.copy(episode["demo"], data, name=demo_name(i))
+                        total += int(episode["demo"].attrs["num_samples"])
+                        extra = read_attrs(episode)
+                        if "state_layout" in extra:
+                            layouts.setdefault(extra["task_key"], extra["state_layout"])
+                _write_attrs(data, {**attrs, "total": total, "state_layouts": layouts})
+            _sync(assembling)
+            with DemoFile(assembling) as check:  # every dataset of every demo reads back
+                if len(check) != self._count:
+                    raise OSError(f"{assembling}: {len(check)} demos read back, {self._count} written")
+                for name in check.names:
+                    check.demo(name)
+            os.replace(assembling, self.path)
+            _sync(os.path.dirname(os.path.abspath(self.path)))
+            shutil.rmtree(self.partial)
+            return self.path
+        finally:
+            self._lock.__exit__(None, None, None)
 
     def abandon(self) -> None:
-        """Close without publishing (the partial file stays for --resume)."""
-        self._h5.close()
+        """Stop without publishing (the journal stays for --resume)."""
+        self._lock.__exit__(None, None, None)
+
+    def _episode_path(self, i: int) -> str:
+        return os.path.join(self.partial, f"{demo_name(i)}.h5")
+
+    def _write_header(self, attrs: Mapping[str, Any]) -> None:
+        _durable_h5(os.path.join(self.partial, _HEADER), lambda h5: _write_attrs(h5, attrs))
+
+    def _recover(self) -> int:
+        """Count the journal's readable demos from demo_0 on; drop everything after the first gap."""
+        count = 0
+        while _reads(self._episode_path(count), lambda h5: h5["demo"].attrs["num_samples"]):
+            count += 1
+        keep = {_HEADER} | {os.path.basename(self._episode_path(i)) for i in range(count)}
+        for leftover in set(os.listdir(self.partial)) - keep:
+            os.remove(os.path.join(self.partial, leftover))
+        return count
+
+
+_HEADER = "header.h5"
+
+
+def _durable_h5(path: str, fill: Callable[[h5py.File], None]) -> None:
+    """Write an HDF5 file whole or not at all: `fill` it under a temporary name, sync, rename, sync the folder."""
+    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp")
+    try:
+        with h5py.File(tmp, "w") as h5:
+            fill(h5)
+        _sync(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise
+    _sync(os.path.dirname(path))
+
+
+def _reads(path: str, probe: Callable[[h5py.File], Any]) -> bool:
+    """Whether the HDF5 file at `path` exists, opens and answers `probe`."""
+    try:
+        with h5py.File(path, "r") as h5:
+            probe(h5)
+        return True
+    except (OSError, KeyError):
+        return False
+
+
+def _sync(path: str) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

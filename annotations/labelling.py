@@ -171,19 +171,16 @@ def _summary(records: list[dict[str, Any]], in_path: str, out_path: str, human_r
     }
 
 
-def _done_records(partial: str, annotation: dict[str, Any]) -> list[dict[str, Any]]:
+def _done_records(writer: DemoWriter, annotation: dict[str, Any]) -> list[dict[str, Any]]:
     """Verdict attributes of the demos a resumed run already wrote (refused if labelled differently)."""
-    if not os.path.exists(partial):
-        return []
-    with DemoFile(partial) as done:
-        before = done.attrs.get("annotation", {})
-        for key in ("gamma", "segment_length", "itc_params", "spec_overrides_dir", "human_labels"):
-            if before.get(key) != annotation[key]:
-                raise UserInputError(
-                    f"{partial}: annotation.{key} of the interrupted run differs from this run's; "
-                    "resume with the same settings or delete the partial file"
-                )
-        return [{k: done.demo(n).attrs[k] for k in ("success", "elegant", "violated")} for n in done.names]
+    before = writer.attrs.get("annotation", {})
+    for key in ("gamma", "segment_length", "itc_params", "spec_overrides_dir", "human_labels"):
+        if before.get(key) != annotation[key]:
+            raise UserInputError(
+                f"{writer.partial}: annotation.{key} of the interrupted run differs from this run's; "
+                "resume with the same settings or delete the partial folder"
+            )
+    return [{k: attrs[k] for k in ("success", "elegant", "violated")} for attrs in writer.written_attrs()]
 
 
 def annotate_file(
@@ -220,9 +217,9 @@ def annotate_file(
             "spec_overrides_dir": overrides_dir,
             "human_labels": {"file": labels_csv, "rows": sum(len(v) for v in human.values())} if labels_csv else None,
         }
-        records = _done_records(out_path + ".partial", file_attrs["annotation"]) if resume else []
         writer = DemoWriter(out_path, file_attrs, resume=resume)
         try:
+            records = _done_records(writer, file_attrs["annotation"])
             done_before = writer.count
             jobs = list(enumerate(source.names))[done_before:]
             replayer = partial(_Replayer, params, overrides_dir, in_path)

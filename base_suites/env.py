@@ -81,12 +81,18 @@ class LiberoEnv(gym.Env):
         self.task = plan.task
         self.instruction = plan.instruction
         self.obs_mode = obs
-        self.max_steps = int(max_steps or task.default_max_steps)
+        if max_steps is not None and (int(max_steps) != max_steps or max_steps < 1):
+            raise UserInputError(
+                f"max_steps must be a positive number of steps (or None for the task's), got {max_steps!r}"
+            )
+        self.max_steps = int(max_steps if max_steps is not None else task.default_max_steps)
         self.settle_steps = int(settle_steps)
         self._init_states = self.task.load_init_states()
         self._fixed_init = init_state
         if init_state is not None and not 0 <= init_state < len(self._init_states):
             raise UserInputError(f"init_state {init_state} out of range: expected 0..{len(self._init_states) - 1}")
+        if int(camera_size) != camera_size or camera_size < 1:
+            raise UserInputError(f"camera_size must be a positive number of pixels, got {camera_size!r}")
         self._camera_size = camera_size
         with _global_numpy_seeded(0 if seed is None else int(seed)):
             self._env = self._build(plan.env_kwargs)
@@ -158,6 +164,9 @@ class LiberoEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         super().reset(seed=seed)
         options = options or {}
+        unknown = set(options) - {"init_state"}
+        if unknown:
+            raise UserInputError(f"reset options {sorted(unknown)} unknown; expected only 'init_state'")
         index = options.get("init_state", self._fixed_init)
         if index is None:
             index = int(self.np_random.integers(len(self._init_states)))
@@ -187,7 +196,14 @@ class LiberoEnv(gym.Env):
         self.domain.sim.forward()
 
     def step(self, action):
-        action = np.clip(np.asarray(action, dtype=np.float64).reshape(7), -1.0, 1.0)
+        if self._init_index < 0:
+            raise UserInputError("step() before reset(): reset the env first")
+        action = np.asarray(action, dtype=np.float64)
+        if action.size != 7:
+            raise UserInputError(f"action has shape {action.shape}; expected (7,)")
+        if not np.isfinite(action).all():
+            raise UserInputError(f"action holds NaN or infinity: {action.reshape(7).tolist()}")
+        action = np.clip(action.reshape(7), -1.0, 1.0)
         success, raw = self._control_step(action)
         # MuJoCo's step leaves body poses one physics substep behind the integrated qpos; refresh them so
         # observations and constraint checks match a replay from the stored MuJoCo state exactly.

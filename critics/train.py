@@ -35,6 +35,7 @@ from base_suites.runtime.settings import with_overrides
 from critics.artifact import atomic_torch_save, save_critic
 from critics.config import TrainConfig
 from critics.data import TransitionData, load_transitions, make_replay_buffer
+from critics.divergence import refuse_divergence
 from critics.loss import CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
@@ -242,6 +243,7 @@ def train_critic(
                 {k.removeprefix("loss_"): f"{last[k]:.3g}" for k in ("loss_qvalue", "loss_cql", "loss_actor", "alpha")}
             )
         if step % cfg.checkpoint_every == 0 or step == cfg.steps:
+            refuse_divergence("train-critic", f"step {step}", {k: float(v) for k, v in losses.items()}, run.loss)
             atomic_torch_save(ckpt_path, run.state(step, cfg, fingerprint))
         bar.update(1)
     bar.close()

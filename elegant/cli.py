@@ -467,6 +467,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"elegant {args.command}: interrupted; rerun with --resume where supported", file=sys.stderr)
         return 130
+    except OSError as exc:  # a full disk, a lost mount, a permission changed mid-run: finished work stays
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(
+            f"elegant {args.command}: error: {where}{exc.strerror or exc}; "
+            "what finished is kept, rerun with --resume where supported",
+            file=sys.stderr,
+        )
+        return 1
     if isinstance(result, dict):
         _print_json(result)
     return 0

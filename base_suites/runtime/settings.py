@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import types
 import typing
@@ -87,6 +88,18 @@ def index_list(text: str) -> tuple[int, ...]:
     return tuple(out)
 
 
+def finite_float(text: str) -> float:
+    """A command-line number that is finite: NaN or infinity would silently change an experiment (a NaN
+    threshold never triggers, a NaN weight trains a NaN model)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a number") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a finite number")
+    return value
+
+
 def _bare(annotation: Any) -> Any:
     """The annotation without `| None`."""
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
@@ -105,6 +118,8 @@ def _option(annotation: Any) -> tuple[Callable[[str], Any], tuple[Any, ...] | No
         return int_list, None
     if origin in (list, tuple) and args and args[0] is str:
         return str_list, None
+    if annotation is float:
+        return finite_float, None
     if annotation in _SCALARS:
         return annotation, None
     raise TypeError(f"no command-line option for a field of type {annotation!r}")
@@ -228,6 +243,8 @@ def with_overrides(
             )
             changes[key] = with_overrides(getattr(config, key), value, where, _path=f"{_path}{key}.", _owned=owned)
         else:
+            if isinstance(value, float) and not math.isfinite(value):
+                raise UserInputError(f"{where}: field '{_path}{key}' is {value}; expected a finite number")
             changes[key] = _coerce(hints[key], value)
     return dataclasses.replace(config, **changes)
 

@@ -33,6 +33,7 @@ from base_suites import UserInputError, make_env, task_specs
 from base_suites.rollout import run_episode
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
+from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import EvalConfig
@@ -229,37 +230,40 @@ def evaluate(
     }
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    _prepare_run_dir(out, record, resume)
-    log = EpisodeLog(out / "episodes.jsonl")
-    done = log.done()
-    jobs = [
-        EvalJob(index, e, cfg.mode if task_modes is None else task_modes[task_key(suite, index)])
-        for index in indices
-        for e in range(int(cfg.episodes))
-        if (task_key(suite, index), e) not in done
-    ]
-    # the agent built here serves a serial run; worker processes each build their own from the same inputs
-    make_worker = partial(
-        EpisodeRunner,
-        agent if workers == 1 else partial(build_agent, policy, critic, cfg),
-        record,
-        str(out),
-    )
-    total = len(indices) * int(cfg.episodes)
-    with tqdm(total=total, initial=total - len(jobs), desc=f"eval {cfg.mode}", unit="ep", disable=not progress) as bar:
-        with run_jobs(make_worker, jobs, workers) as results:
-            for _, episode in results:
-                log.append(episode)
-                bar.update(1)
-                bar.set_postfix(
-                    success=f"{np.mean([r['success'] for r in log.records]):.2f}",
-                    esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}",
-                )
-    records = run_records(log.records, record)
-    summary = {"config": record, **summarize(records)}
-    atomic_write(out / "summary.json", json.dumps(summary, indent=2))
-    write_run_report(out, summary, records)
-    return summary
+    with output_lock(out):  # one writer per run directory
+        _prepare_run_dir(out, record, resume)
+        log = EpisodeLog(out / "episodes.jsonl")
+        done = log.done()
+        jobs = [
+            EvalJob(index, e, cfg.mode if task_modes is None else task_modes[task_key(suite, index)])
+            for index in indices
+            for e in range(int(cfg.episodes))
+            if (task_key(suite, index), e) not in done
+        ]
+        # the agent built here serves a serial run; worker processes each build their own from the same inputs
+        make_worker = partial(
+            EpisodeRunner,
+            agent if workers == 1 else partial(build_agent, policy, critic, cfg),
+            record,
+            str(out),
+        )
+        total = len(indices) * int(cfg.episodes)
+        with tqdm(
+            total=total, initial=total - len(jobs), desc=f"eval {cfg.mode}", unit="ep", disable=not progress
+        ) as bar:
+            with run_jobs(make_worker, jobs, workers) as results:
+                for _, episode in results:
+                    log.append(episode)
+                    bar.update(1)
+                    bar.set_postfix(
+                        success=f"{np.mean([r['success'] for r in log.records]):.2f}",
+                        esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}",
+                    )
+        records = run_records(log.records, record)
+        summary = {"config": record, **summarize(records)}
+        atomic_write(out / "summary.json", json.dumps(summary, indent=2))
+        write_run_report(out, summary, records)
+        return summary
 
 
 @dataclass(frozen=True)

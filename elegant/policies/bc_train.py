@@ -32,6 +32,7 @@ from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.settings import with_overrides
+from critics.divergence import refuse_divergence
 from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
@@ -312,6 +313,7 @@ def train_policy(
             bar.update(1)
         losses.append(total / len(windows))
         bar.set_postfix(epoch=epoch + 1, nll=f"{losses[-1]:.3f}")
+        refuse_divergence("train-policy", f"epoch {epoch + 1}", {"nll": losses[-1]}, net)
         if epoch + 1 in snapshots:  # before the checkpoint: a crash in between redoes this epoch and rewrites it
             publish(snapshot_dir(out, epoch + 1))
         _save_checkpoint(

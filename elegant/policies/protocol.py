@@ -81,10 +81,13 @@ def chunk_of(policy: Any) -> int:
 
 
 def as_action(value: Any, source: str = "policy") -> np.ndarray:
-    """One action as a float64 (7,) array clipped to the action bounds; refuse any other shape."""
+    """One action as a float64 (7,) array clipped to the action bounds; refuse any other shape, and NaN or
+    infinity (which MuJoCo would only warn about)."""
     action = np.asarray(value, dtype=np.float64).reshape(-1)
     if action.shape != (ACTION_DIM,):
         raise UserInputError(f"{source} returned an action of shape {np.shape(value)}; expected ({ACTION_DIM},)")
+    if not np.isfinite(action).all():
+        raise UserInputError(f"{source} returned an action holding NaN or infinity: {action.tolist()}")
     return np.clip(action, ACTION_LOW, ACTION_HIGH)
 
 
