@@ -9,6 +9,7 @@ uninterrupted run would have.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -16,7 +17,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from annotations.dataset import Demo, DemoWriter
+from annotations.dataset import Demo, DemoFile, DemoWriter
 from base_suites import make_env, task_specs
 from base_suites.env import LiberoEnv
 from base_suites.experts import EXPERT_VERSION, ScriptedExpert, knob_rates, parse_quality
@@ -24,6 +25,7 @@ from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import changed_fields
 from base_suites.runtime.jobs import check_picklable, check_workers, in_order, run_jobs
+from base_suites.runtime.outputs import check_output
 from base_suites.runtime.seeds import derive_seed
 from base_suites.runtime.settings import setting, with_overrides
 
@@ -102,14 +104,16 @@ def collect_episodes(
     make_source: Callable[[], EpisodeSource],
     *,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     workers: int = 1,
 ) -> str:
     """Roll the source `make_source()` builds out as `collection` says and write the episodes to `out` in
-    the demo layout: appended to `out.partial` in episode order as they finish, renamed to `out` when all
-    are there; `resume` continues an interrupted file, only with the same collection. `workers`: processes
-    recording episodes side by side (`base_suites.runtime.jobs`; `make_source` must then be picklable);
-    the file does not depend on it. Returns the path."""
+        the demo layout: appended to `out.partial` in episode order as they finish, renamed to `out` when all
+        are there; `resume` continues an interrupted file, only with the same collection (a finished one is
+    returned as it is), and `overwrite` replaces an existing file once the new one is complete. `workers`: processes
+        recording episodes side by side (`base_suites.runtime.jobs`; `make_source` must then be picklable);
+        the file does not depend on it. Returns the path."""
     from tqdm import tqdm
 
     suite, tasks, episodes, seed = collection.suite, collection.tasks, collection.episodes, collection.seed
@@ -119,6 +123,7 @@ def collect_episodes(
         collection.perturbation,
         collection.desc,
     )
+    check_output(out, "file", resume=resume, overwrite=overwrite)
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
     workers = check_workers(workers)
@@ -128,6 +133,8 @@ def collect_episodes(
     collection = json.loads(
         json.dumps({"suite": suite, "tasks": [s.index for s in specs], "episodes": episodes, "seed": seed, **settings})
     )
+    if resume and os.path.exists(out) and not DemoWriter.resumable(out):
+        return _finished(out, collection)
     writer = DemoWriter(
         out, _file_attrs(out, resume, suite, specs, seed, horizon, perturbation, collection), resume=resume
     )
@@ -164,6 +171,18 @@ def collect_episodes(
     finally:
         if bar is not None:
             bar.close()
+
+
+def _finished(out: str, collection: Mapping[str, Any]) -> str:
+    """A finished file that `--resume` finds: returned as it is when it holds this collection."""
+    with DemoFile(out) as done:
+        changed = changed_fields(done.attrs.get("collection"), collection)
+    if changed:
+        raise UserInputError(
+            f"{out}: a finished file of different {', '.join(k for k, _, _ in changed)}; "
+            "choose another path or pass --overwrite"
+        )
+    return out
 
 
 def _file_attrs(
@@ -323,13 +342,15 @@ def collect_demos(
     config: DemoConfig | None = None,
     *,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     workers: int = 1,
     **settings: Any,
 ) -> dict[str, Any]:
     """Roll out the scripted expert on every task of `tasks` of `suite` (None: all) as `config` says
     (default: `DemoConfig`'s defaults; keyword `settings` override its fields) and write the demos file
-    `out` (`workers` processes side by side; the file does not depend on it).
+    `out` (`workers` processes side by side; the file does not depend on it; `resume` and `overwrite` as in
+    `collect_episodes`).
 
     Returns a summary: demos written, success rate, per-knob rates, per-task success.
     """
@@ -346,7 +367,13 @@ def collect_demos(
         desc="demos",
     )
     path = collect_episodes(
-        demos_of, out, partial(_ExpertSource, quality, seed), resume=resume, progress=progress, workers=workers
+        demos_of,
+        out,
+        partial(_ExpertSource, quality, seed),
+        resume=resume,
+        overwrite=overwrite,
+        progress=progress,
+        workers=workers,
     )
     from annotations.dataset import DemoFile
 

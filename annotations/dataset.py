@@ -316,6 +316,13 @@ class DemoWriter:
         """Stop without publishing (the journal stays for --resume)."""
         self._lock.__exit__(None, None, None)
 
+    def discard(self) -> None:
+        """Stop without publishing and remove the journal (for writers that are never resumed)."""
+        try:
+            shutil.rmtree(self.partial, ignore_errors=True)
+        finally:
+            self._lock.__exit__(None, None, None)
+
     def _episode_path(self, i: int) -> str:
         return os.path.join(self.partial, f"{demo_name(i)}.h5")
 

@@ -30,6 +30,7 @@ from annotations.format import ANNOTATION_SCHEMA_VERSION, CRITERIA
 from annotations.human_labels import apply_human_labels, read_human_labels
 from base_suites import LiberoEnv, UserInputError, make_env, make_perturbation
 from base_suites.runtime.jobs import check_workers, in_order, run_jobs
+from base_suites.runtime.outputs import check_output
 from itc import EpisodeVerdict, ITCMonitor, ITCParams, derive_spec
 
 
@@ -193,10 +194,14 @@ def annotate_file(
     gamma: float = 0.99,
     progress: bool = True,
     resume: bool = False,
+    overwrite: bool = False,
     workers: int = 1,
 ) -> dict[str, Any]:
     """Write an ITC-annotated copy of a demo file; returns a summary (rates of success, elegance, violations).
-    `workers`: processes replaying demos side by side (`base_suites.runtime.jobs`); the file does not depend on it."""
+    `workers`: processes replaying demos side by side (`base_suites.runtime.jobs`); the file does not depend on it.
+    `resume` continues an interrupted annotation (a finished one is summarised as it is); `overwrite`
+    replaces an existing file once the new one is complete."""
+    check_output(out_path, "file", resume=resume, overwrite=overwrite)
     params = params or ITCParams()
     check_workers(workers)
     if not 0.0 < gamma <= 1.0:

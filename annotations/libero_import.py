@@ -16,6 +16,7 @@ import numpy as np
 from annotations.dataset import Demo, DemoWriter, read_attrs
 from base_suites import get_task, list_tasks, make_env
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.outputs import check_output
 from base_suites.suites import MAIN_SUITES, TaskSpec
 
 
@@ -30,11 +31,19 @@ def find_task(bddl_file_name: str, suite: str | None = None) -> TaskSpec:
 
 
 def import_libero_hdf5(
-    path: str, out: str, *, suite: str | None = None, task: int | None = None, progress: bool = True
+    path: str,
+    out: str,
+    *,
+    suite: str | None = None,
+    task: int | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
 ) -> dict[str, Any]:
-    """Replay every demo of a LIBERO HDF5 file and write it in this project's layout to `out`."""
+    """Replay every demo of a LIBERO HDF5 file and write it in this project's layout to `out` (an existing
+    `out` only with `overwrite`, replaced once the new file is complete)."""
     from tqdm import tqdm
 
+    check_output(out, "file", overwrite=overwrite)
     if not os.path.exists(path):
         raise UserInputError(f"{path}: no such file")
     try:
@@ -109,7 +118,7 @@ def import_libero_hdf5(
                 writer.append(demo, env.metadata["state_layout"])
             writer.finish()
         except BaseException:
-            writer.abandon()
+            writer.discard()  # an import is not resumed: a refused or interrupted one leaves nothing
             raise
         finally:
             env.close()

@@ -30,9 +30,11 @@ from tqdm.auto import tqdm
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, library_versions
+from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.outputs import check_output, remove_results
 from base_suites.runtime.settings import with_overrides
-from critics.artifact import atomic_torch_save, save_critic
+from critics.artifact import WEIGHTS_FILE, atomic_torch_save, save_critic
 from critics.config import TrainConfig
 from critics.data import TransitionData, load_transitions, make_replay_buffer
 from critics.divergence import refuse_divergence
@@ -190,6 +192,7 @@ def train_critic(
     config: TrainConfig | None = None,
     *,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     **settings: Any,
 ) -> dict[str, Any]:
@@ -198,7 +201,8 @@ def train_critic(
     paths: annotated files (`elegant annotate`), all with the same gamma. The settings are `config`'s
     (default: `TrainConfig`'s defaults), with keyword `settings` naming `TrainConfig` fields overriding it;
     see each field's help. resume: continue from out/checkpoint.pt (else a run refuses a directory that
-    holds one); steps and checkpoint_every may change on resume, nothing else.
+    holds one or a critic, unless `overwrite` starts it afresh); steps and checkpoint_every may change on
+    resume, nothing else.
 
     Returns a summary: out (the directory, loadable with `critics.load`), steps, resumed_from (the
     checkpoint step a resumed run started from, else None), transitions, demos, tasks, gamma, seconds,
@@ -207,67 +211,69 @@ def train_critic(
     paths = [os.path.abspath(p) for p in paths]
     cfg = with_overrides(config or TrainConfig(), {**settings, "paths": paths}, "train-critic")
     cfg.validate()
-    os.makedirs(out, exist_ok=True)
+    check_output(out, "dir", resume=resume, overwrite=overwrite, results=(CHECKPOINT_FILE, WEIGHTS_FILE))
     ckpt_path = os.path.join(out, CHECKPOINT_FILE)
-    if os.path.exists(ckpt_path) and not resume:
-        raise UserInputError(
-            f"{ckpt_path} exists: pass resume=True (--resume) to continue it, or choose another output directory"
-        )
-
     data = load_transitions(cfg.paths, cfg.gamma, cfg.reward, cfg.chunk, cfg.bootstrap)
-    fingerprint = data.fingerprint()
-    run = _Run(cfg, data)
-    start = 0
-    resumed_from = None
-    if resume and os.path.exists(ckpt_path):
-        state = _read_checkpoint(ckpt_path)
-        _check_resumable(ckpt_path, state, cfg, fingerprint)
-        if int(state["step"]) > cfg.steps:
-            raise UserInputError(
-                f"{ckpt_path}: checkpoint is at step {state['step']}, beyond steps={cfg.steps}; ask for at least "
-                "that many"
-            )
-        run.restore(state)
-        start = resumed_from = int(state["step"])
+    with output_lock(out):  # one writer per critic directory
+        os.makedirs(out, exist_ok=True)  # only now: refused settings or data leave nothing behind
+        if overwrite:  # the earlier run's critic and checkpoint go before this run writes its own
+            remove_results(out, (CHECKPOINT_FILE, WEIGHTS_FILE))
+        fingerprint = data.fingerprint()
+        run = _Run(cfg, data)
+        start = 0
+        resumed_from = None
+        if resume and os.path.exists(ckpt_path):
+            state = _read_checkpoint(ckpt_path)
+            _check_resumable(ckpt_path, state, cfg, fingerprint)
+            if int(state["step"]) > cfg.steps:
+                raise UserInputError(
+                    f"{ckpt_path}: checkpoint is at step {state['step']}, beyond steps={cfg.steps}; ask for at least "
+                    "that many"
+                )
+            run.restore(state)
+            start = resumed_from = int(state["step"])
 
-    metrics = _MetricsLog(os.path.join(out, METRICS_FILE), run.loss.out_keys, keep_until=resumed_from)
-    last: dict[str, float] = {}
-    began = time.perf_counter()
-    bar = tqdm(total=cfg.steps, initial=start, disable=not progress, desc="train-critic", unit="step")
-    for step in range(start + 1, cfg.steps + 1):
-        losses = run.step()
-        if step % cfg.log_every == 0 or step == cfg.steps:
-            last = {k: float(v.detach()) for k, v in losses.items()}
-            metrics.append(step, last)
-            bar.set_postfix(
-                {k.removeprefix("loss_"): f"{last[k]:.3g}" for k in ("loss_qvalue", "loss_cql", "loss_actor", "alpha")}
-            )
-        if step % cfg.checkpoint_every == 0 or step == cfg.steps:
-            refuse_divergence("train-critic", f"step {step}", {k: float(v) for k, v in losses.items()}, run.loss)
-            atomic_torch_save(ckpt_path, run.state(step, cfg, fingerprint))
-        bar.update(1)
-    bar.close()
-    seconds = time.perf_counter() - began
+        metrics = _MetricsLog(os.path.join(out, METRICS_FILE), run.loss.out_keys, keep_until=resumed_from)
+        last: dict[str, float] = {}
+        began = time.perf_counter()
+        bar = tqdm(total=cfg.steps, initial=start, disable=not progress, desc="train-critic", unit="step")
+        for step in range(start + 1, cfg.steps + 1):
+            losses = run.step()
+            if step % cfg.log_every == 0 or step == cfg.steps:
+                last = {k: float(v.detach()) for k, v in losses.items()}
+                metrics.append(step, last)
+                bar.set_postfix(
+                    {
+                        k.removeprefix("loss_"): f"{last[k]:.3g}"
+                        for k in ("loss_qvalue", "loss_cql", "loss_actor", "alpha")
+                    }
+                )
+            if step % cfg.checkpoint_every == 0 or step == cfg.steps:
+                refuse_divergence("train-critic", f"step {step}", {k: float(v) for k, v in losses.items()}, run.loss)
+                atomic_torch_save(ckpt_path, run.state(step, cfg, fingerprint))
+            bar.update(1)
+        bar.close()
+        seconds = time.perf_counter() - began
 
-    save_critic(
-        out,
-        run.loss.get_stateful_net("qvalue_network"),
-        data.encoder,
-        data.normalization,
-        gamma=data.gamma,
-        chunk=data.chunk,
-        training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)},
-    )
-    trained = max(cfg.steps - start, 0)
-    return {
-        "out": out,
-        "steps": cfg.steps,
-        "resumed_from": resumed_from,
-        "transitions": len(data.transitions),
-        "demos": data.n_demos,
-        "tasks": data.encoder.tasks,
-        "gamma": data.gamma,
-        "seconds": seconds,
-        "steps_per_second": trained / seconds if trained and seconds > 0 else None,
-        "final": last,
-    }
+        save_critic(
+            out,
+            run.loss.get_stateful_net("qvalue_network"),
+            data.encoder,
+            data.normalization,
+            gamma=data.gamma,
+            chunk=data.chunk,
+            training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)},
+        )
+        trained = max(cfg.steps - start, 0)
+        return {
+            "out": out,
+            "steps": cfg.steps,
+            "resumed_from": resumed_from,
+            "transitions": len(data.transitions),
+            "demos": data.n_demos,
+            "tasks": data.encoder.tasks,
+            "gamma": data.gamma,
+            "seconds": seconds,
+            "steps_per_second": trained / seconds if trained and seconds > 0 else None,
+            "final": last,
+        }

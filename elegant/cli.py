@@ -92,6 +92,12 @@ def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
     add_workers_argument(p, default)
 
 
+def _overwrite_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an existing output (a file only once the new one is complete)"
+    )
+
+
 def _demos_args(p: argparse.ArgumentParser) -> None:
     from annotations.collect import DemoConfig
     from base_suites.runtime.settings import add_settings_arguments
@@ -100,6 +106,7 @@ def _demos_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true", help="continue an interrupted file")
+    _overwrite_arg(p)
     add_settings_arguments(p, DemoConfig)
     _workers_arg(p)
 
@@ -114,6 +121,7 @@ def _demos(args: argparse.Namespace) -> dict:
         _task_list(args.tasks),
         args.out,
         resume=args.resume,
+        overwrite=args.overwrite,
         workers=args.workers,
         **settings_from_args(args, DemoConfig),
     )
@@ -128,6 +136,7 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
     p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")
     p.add_argument("--resume", action="store_true", help="continue OUT.partial")
+    _overwrite_arg(p)
     add_settings_arguments(p, RolloutConfig)
     _workers_arg(p)
 
@@ -147,6 +156,7 @@ def _rollouts(args: argparse.Namespace) -> dict:
         args.policy,
         args.out,
         resume=args.resume,
+        overwrite=args.overwrite,
         workers=args.workers,
         **settings_from_args(args, RolloutConfig),
     )
@@ -157,13 +167,14 @@ def _import_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True)
     p.add_argument("--suite", help="suite of the task (default: found from the file's bddl_file_name)")
     p.add_argument("--task", type=int, help="task index (with --suite)")
+    _overwrite_arg(p)
 
 
 @command("import-libero", "replay a LIBERO HDF5 demo file into this project's layout")(_import_args)
 def _import_libero(args: argparse.Namespace) -> dict:
     from annotations.libero_import import import_libero_hdf5
 
-    return import_libero_hdf5(args.file, args.out, suite=args.suite, task=args.task)
+    return import_libero_hdf5(args.file, args.out, suite=args.suite, task=args.task, overwrite=args.overwrite)
 
 
 def _annotate_args(p: argparse.ArgumentParser) -> None:
@@ -174,6 +185,7 @@ def _annotate_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gamma", type=float, help="discount of the Monte-Carlo return (default: annotate_file's)")
     p.add_argument("--export-labels", help="also write the final segment labels as CSV here")
     p.add_argument("--resume", action="store_true")
+    _overwrite_arg(p)
     _workers_arg(p)
 
 
@@ -188,6 +200,7 @@ def _annotate(args: argparse.Namespace) -> dict:
         labels_csv=args.labels,
         overrides_dir=args.specs,
         resume=args.resume,
+        overwrite=args.overwrite,
         workers=args.workers,
         **({} if args.gamma is None else {"gamma": args.gamma}),
     )
@@ -222,6 +235,7 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
         help="train on the demos whose episode succeeded (as LIBERO's datasets hold)",
     )
     p.add_argument("--resume", action="store_true")
+    _overwrite_arg(p)
 
 
 @command("train-policy", "train the BC base policy (GMM head) on demos")(_train_policy_args)
@@ -235,6 +249,7 @@ def _train_policy(args: argparse.Namespace) -> dict:
         args.out,
         successful_only=args.successful_only,
         resume=args.resume,
+        overwrite=args.overwrite,
         **settings_from_args(args, BCConfig),
     )
     summary.pop("loss_history", None)
@@ -249,6 +264,7 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True)
     add_settings_arguments(p, TrainConfig, exclude=("paths",))
     p.add_argument("--resume", action="store_true")
+    _overwrite_arg(p)
 
 
 @command("train-critic", "train the Cal-QL elegance critic offline on annotated demos")(_train_critic_args)
@@ -257,7 +273,7 @@ def _train_critic(args: argparse.Namespace) -> dict:
     from critics import TrainConfig, train_critic
 
     settings = settings_from_args(args, TrainConfig, exclude=("paths",))
-    return train_critic(args.data, args.out, resume=args.resume, **settings)
+    return train_critic(args.data, args.out, resume=args.resume, overwrite=args.overwrite, **settings)
 
 
 def _rank_check_args(p: argparse.ArgumentParser) -> None:

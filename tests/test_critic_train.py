@@ -174,7 +174,7 @@ def test_refusals(trained, annotated, tmp_path):
 
     run = str(tmp_path / "again")
     train_critic([annotated], run, steps=2, **TINY)
-    with pytest.raises(UserInputError, match="checkpoint.pt exists"):
+    with pytest.raises(UserInputError, match="checkpoint.pt: exists; pass --resume"):
         train_critic([annotated], run, steps=4, **TINY)
     with pytest.raises(UserInputError, match="cannot resume with different seed"):
         train_critic([annotated], run, steps=4, resume=True, seed=1, **TINY)

@@ -176,7 +176,7 @@ def test_episode_start_is_seeded_and_visits_distinct_inits():
 
 def test_refuses_existing_run_without_resume_and_a_different_config(runs):
     out = runs["root"] / "full"
-    with pytest.raises(UserInputError, match="already holds a run"):
+    with pytest.raises(UserInputError, match="config.json: exists; pass --resume"):
         run(out)
     with pytest.raises(UserInputError, match="field 'mode'"):
         run(out, mode="always", resume=True)

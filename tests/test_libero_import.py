@@ -75,6 +75,7 @@ def test_import_refuses_wrong_state_size_and_missing_fields(tmp_path):
     _write_libero_file(path, env, np.zeros((3, 5)), np.zeros((3, 7)))
     with pytest.raises(UserInputError, match="states has 5 values per step"):
         import_libero_hdf5(str(path), str(tmp_path / "o.hdf5"), progress=False)
+    assert not list(tmp_path.glob("o.hdf5*"))  # a refused import leaves nothing behind
     with h5py.File(tmp_path / "empty.hdf5", "w") as f:
         f.create_group("nodata")
     with pytest.raises(UserInputError, match="missing group 'data'"):

@@ -28,8 +28,9 @@ def lock_path(path: str | os.PathLike) -> str:
 @contextmanager
 def output_lock(path: str | os.PathLike) -> Iterator[None]:
     """Hold the lock of output `path` inside the block; refuse (UserInputError) if another run holds it.
-    The lock file's directory must exist."""
+    Creates the output's parent directory."""
     lock = lock_path(path)
+    os.makedirs(os.path.dirname(lock), exist_ok=True)
     while True:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)

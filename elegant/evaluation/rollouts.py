@@ -33,6 +33,7 @@ from annotations.collect import Collection, collect_episodes
 from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
+from base_suites.runtime.outputs import check_output
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import RolloutConfig
 from elegant.evaluation.runner import check_init_states, episode_start, open_policy
@@ -137,12 +138,14 @@ def collect_rollouts(
     config: RolloutConfig | None = None,
     *,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     workers: int = 1,
     **settings: Any,
 ) -> dict[str, Any]:
     """Roll `policy` (a directory or a callable) out on every task of `tasks` of `suite` (None: all of it)
-    and write the episodes to `out` (demo layout, atomic, resumable with the same settings).
+    and write the episodes to `out` (demo layout, crash-safe, resumable with the same settings; `resume` and
+    `overwrite` as in `annotations.collect.collect_episodes`).
 
     The settings are `config`'s (default: `RolloutConfig`'s defaults), with keyword `settings` naming its
     fields overriding it; see each field's help. Without exploration, more episodes than starts repeat
@@ -151,6 +154,7 @@ def collect_rollouts(
     Returns: out, episodes, success_rate, explored_per_episode (mean explored decisions).
     """
     cfg = (config or RolloutConfig()).with_settings(**settings)
+    check_output(out, "file", resume=resume, overwrite=overwrite)
     specs = task_specs(suite, tasks)
     for spec in specs:
         check_init_states(cfg.init_states, spec.n_init_states)  # before any env or file is made
@@ -183,7 +187,9 @@ def collect_rollouts(
         desc="rollouts",
     )
     source_of = (lambda: source) if workers == 1 else make_source
-    path = collect_episodes(rollouts_of, out, source_of, resume=resume, progress=progress, workers=workers)
+    path = collect_episodes(
+        rollouts_of, out, source_of, resume=resume, overwrite=overwrite, progress=progress, workers=workers
+    )
     with DemoFile(path) as f:
         demos = list(f)
     return {

@@ -35,6 +35,7 @@ from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.outputs import check_output
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import EvalConfig
 from elegant.evaluation.episode_log import EpisodeLog, run_records
@@ -121,15 +122,11 @@ def build_agent(policy: Any, critic: Any, config: EvalConfig) -> JITI:
     return JITI(open_policy(policy, config.policy_act), open_critic(critic), config.jiti, seed=config.seed)
 
 
-def _prepare_run_dir(out: Path, config: dict[str, Any], resume: bool) -> None:
+def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
     path = out / "config.json"
     if not path.exists() and (out / "episodes.jsonl").exists():
         raise UserInputError(f"{out} holds episodes.jsonl without config.json; choose another directory")
     if path.exists():
-        if not resume:
-            raise UserInputError(
-                f"{out} already holds a run (config.json); resume it (--resume) or choose another directory"
-            )
         stored = read_json_file(path, "run config")
         changed = changed_fields(stored, config, ignore=("episodes",), added=added_later("eval run"))
         if changed:
@@ -192,6 +189,7 @@ def evaluate(
     overrides_per_episode, steps_per_episode, decision_time, env_step_time, decision_overhead, per_task.
     """
     cfg = (config or EvalConfig()).with_settings(**settings)
+    check_output(out, "dir", resume=resume, results=("config.json", "episodes.jsonl"))
     if critic is not None and cfg.obs == "rgb":
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
     specs = task_specs(suite, tasks)
@@ -231,7 +229,7 @@ def evaluate(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with output_lock(out):  # one writer per run directory
-        _prepare_run_dir(out, record, resume)
+        _prepare_run_dir(out, record)
         log = EpisodeLog(out / "episodes.jsonl")
         done = log.done()
         jobs = [

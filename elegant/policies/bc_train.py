@@ -30,10 +30,12 @@ from tqdm import tqdm
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields
+from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.outputs import check_output, remove_results
 from base_suites.runtime.settings import with_overrides
 from critics.divergence import refuse_divergence
-from elegant.policies.bc_artifact import read_artifact, torch_bytes, write_artifact
+from elegant.policies.bc_artifact import MODEL_FILE, read_artifact, torch_bytes, write_artifact
 from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
@@ -194,6 +196,7 @@ def train_policy(
     successful_only: bool = False,
     fine_tuning: FineTuning | None = None,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = True,
     on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
     **settings: Any,
@@ -205,7 +208,8 @@ def train_policy(
     once (one GMM over the flattened chunk) and to execute them open-loop, as the action chunks of VLA
     policies: a sample of the mixture is then a coherent sub-trajectory, which is what JITI chooses among
     (see `BCPolicy`). `successful_only`: train on the successful demos only (see `load_demos`); the data a
-    checkpoint records then counts only those. `fine_tuning`: see `FineTuning`.
+    checkpoint records then counts only those. `fine_tuning`: see `FineTuning`. A directory that holds a
+    checkpoint or a policy is continued with `resume` or started afresh with `overwrite`, else refused.
 
     Returns a dict: out, epochs, resumed_from_epoch, loss_history (mean training NLL per epoch), final_nll,
     num_demos, num_samples, tasks, seconds. `on_epoch_end` receives {"epoch", "nll"} after each epoch's
@@ -220,9 +224,7 @@ def train_policy(
         raise UserInputError(
             f"train_policy: snapshot_epochs must be epochs in 0..{cfg.epochs}, got {sorted(snapshots)}"
         )
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise UserInputError(f"{out}: exists and is not a directory")
-    os.makedirs(out, exist_ok=True)
+    check_output(out, "dir", resume=resume, overwrite=overwrite, results=(CHECKPOINT_FILE, MODEL_FILE))
     started = time.perf_counter()
     data = select_tasks(load_demos(paths, successful_only), tasks)
     init = read_artifact(init_from) if init_from is not None else None
@@ -264,85 +266,89 @@ def train_policy(
     losses: list[float] = []
 
     checkpoint = os.path.join(out, CHECKPOINT_FILE)
-    fingerprint = {"config": asdict(cfg), "data": data.files, **origin}
+    with output_lock(out):  # one writer per policy directory
+        os.makedirs(out, exist_ok=True)  # only now: a refused input leaves nothing behind
+        if overwrite:  # the earlier run's policy and checkpoint go before this run writes its own
+            remove_results(out, (CHECKPOINT_FILE, MODEL_FILE))
+        fingerprint = {"config": asdict(cfg), "data": data.files, **origin}
 
-    def publish(directory: str) -> None:
-        """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
-        os.makedirs(directory, exist_ok=True)
-        training = {
-            "config": asdict(cfg),
-            "data": data.files,
-            "loss_history": list(losses),
-            "num_samples": len(windows),
-            **origin,
-            "init_from_path": None if init_from is None else os.path.abspath(init_from),
-        }
-        write_artifact(directory, net, features, model_spec, training)
+        def publish(directory: str) -> None:
+            """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
+            os.makedirs(directory, exist_ok=True)
+            training = {
+                "config": asdict(cfg),
+                "data": data.files,
+                "loss_history": list(losses),
+                "num_samples": len(windows),
+                **origin,
+                "init_from_path": None if init_from is None else os.path.abspath(init_from),
+            }
+            write_artifact(directory, net, features, model_spec, training)
 
-    start_epoch = 0
-    if resume and os.path.exists(checkpoint):
-        state = _load_checkpoint(checkpoint, fingerprint)
-        net.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        scheduler.load_state_dict(state["scheduler"])
-        generator.set_state(state["generator"])
-        losses, start_epoch = list(state["losses"]), int(state["epoch"])
-    if start_epoch == 0 and 0 in snapshots:
-        publish(snapshot_dir(out, 0))
+        start_epoch = 0
+        if resume and os.path.exists(checkpoint):
+            state = _load_checkpoint(checkpoint, fingerprint)
+            net.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+            scheduler.load_state_dict(state["scheduler"])
+            generator.set_state(state["generator"])
+            losses, start_epoch = list(state["losses"]), int(state["epoch"])
+        if start_epoch == 0 and 0 in snapshots:
+            publish(snapshot_dir(out, 0))
 
-    bar = tqdm(
-        total=cfg.epochs * steps_per_epoch,
-        initial=start_epoch * steps_per_epoch,
-        disable=not progress,
-        desc="train-policy",
-        unit="batch",
-    )
-    net.train()
-    for epoch in range(start_epoch, cfg.epochs):
-        total = 0.0
-        for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
-            x, actions = windows.batch(index, cfg.obs_noise, generator)
-            loss = net.nll(x, actions).mean()
-            optimizer.zero_grad(set_to_none=True)
-            loss.backward()
-            if cfg.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-            optimizer.step()
-            scheduler.step()
-            total += loss.item() * len(index)
-            bar.update(1)
-        losses.append(total / len(windows))
-        bar.set_postfix(epoch=epoch + 1, nll=f"{losses[-1]:.3f}")
-        refuse_divergence("train-policy", f"epoch {epoch + 1}", {"nll": losses[-1]}, net)
-        if epoch + 1 in snapshots:  # before the checkpoint: a crash in between redoes this epoch and rewrites it
-            publish(snapshot_dir(out, epoch + 1))
-        _save_checkpoint(
-            checkpoint,
-            {
-                "epoch": epoch + 1,
-                "model": net.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(),
-                "generator": generator.get_state(),
-                "losses": losses,
-                "fingerprint": fingerprint,
-            },
+        bar = tqdm(
+            total=cfg.epochs * steps_per_epoch,
+            initial=start_epoch * steps_per_epoch,
+            disable=not progress,
+            desc="train-policy",
+            unit="batch",
         )
-        if on_epoch_end is not None:
-            on_epoch_end({"epoch": epoch + 1, "nll": losses[-1]})
-    bar.close()
-    net.eval()
+        net.train()
+        for epoch in range(start_epoch, cfg.epochs):
+            total = 0.0
+            for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
+                x, actions = windows.batch(index, cfg.obs_noise, generator)
+                loss = net.nll(x, actions).mean()
+                optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                if cfg.grad_clip > 0:
+                    torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+                optimizer.step()
+                scheduler.step()
+                total += loss.item() * len(index)
+                bar.update(1)
+            losses.append(total / len(windows))
+            bar.set_postfix(epoch=epoch + 1, nll=f"{losses[-1]:.3f}")
+            refuse_divergence("train-policy", f"epoch {epoch + 1}", {"nll": losses[-1]}, net)
+            if epoch + 1 in snapshots:  # before the checkpoint: a crash in between redoes this epoch and rewrites it
+                publish(snapshot_dir(out, epoch + 1))
+            _save_checkpoint(
+                checkpoint,
+                {
+                    "epoch": epoch + 1,
+                    "model": net.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "scheduler": scheduler.state_dict(),
+                    "generator": generator.get_state(),
+                    "losses": losses,
+                    "fingerprint": fingerprint,
+                },
+            )
+            if on_epoch_end is not None:
+                on_epoch_end({"epoch": epoch + 1, "nll": losses[-1]})
+        bar.close()
+        net.eval()
 
-    result = {
-        "out": out,
-        "epochs": cfg.epochs,
-        "resumed_from_epoch": start_epoch,
-        "loss_history": losses,
-        "final_nll": losses[-1],
-        "num_demos": len(data.episodes),
-        "num_samples": len(windows),
-        "tasks": list(features.encoder.tasks),
-        "seconds": time.perf_counter() - started,
-    }
-    publish(out)
-    return result
+        result = {
+            "out": out,
+            "epochs": cfg.epochs,
+            "resumed_from_epoch": start_epoch,
+            "loss_history": losses,
+            "final_nll": losses[-1],
+            "num_demos": len(data.episodes),
+            "num_samples": len(windows),
+            "tasks": list(features.encoder.tasks),
+            "seconds": time.perf_counter() - started,
+        }
+        publish(out)
+        return result
