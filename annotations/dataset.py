@@ -124,6 +124,12 @@ class DemoFile:
     def __len__(self) -> int:
         return len(self.names)
 
+    def validate(self) -> None:
+        """Read every demo once (each read checks shapes, lengths and finiteness), so that a command
+        refuses a bad file before any work starts rather than at that demo."""
+        for name in self.names:
+            self.demo(name)
+
     def __iter__(self) -> Iterator[Demo]:
         for name in self.names:
             yield self.demo(name)

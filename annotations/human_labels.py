@@ -16,8 +16,8 @@ windows. Bad rows are refused with the CSV line number ("row N" counts the heade
 from __future__ import annotations
 
 import csv
+import io
 import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -26,6 +26,7 @@ import numpy as np
 from annotations.dataset import DemoFile
 from annotations.format import CRITERIA
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import atomic_write
 from itc import EpisodeVerdict, window_bounds
 
 HEADER = ("demo", "start_frame", "end_frame", "criterion", "label")
@@ -88,17 +89,35 @@ def read_human_labels(path: str, demo_lengths: Mapping[str, int], segment_length
     if not os.path.exists(path):
         raise UserInputError(f"{path}: no such labels file")
     labels: dict[str, list[HumanLabel]] = {}
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.reader(fh)
-        header = next(reader, None)
-        if header is None or tuple(h.strip().lower() for h in header) != HEADER:
-            raise UserInputError(f"{path}: row 1: header must be {','.join(HEADER)}, got {','.join(header or [])!r}")
-        for cells in reader:
-            if not any(c.strip() for c in cells):
-                continue
-            label = _parse_row(path, reader.line_num, cells, demo_lengths, segment_length)
-            labels.setdefault(label.demo, []).append(label)
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None or tuple(h.strip().lower() for h in header) != HEADER:
+                raise UserInputError(
+                    f"{path}: row 1: header must be {','.join(HEADER)}, got {','.join(header or [])!r}"
+                )
+            for cells in reader:
+                if not any(c.strip() for c in cells):
+                    continue
+                label = _parse_row(path, reader.line_num, cells, demo_lengths, segment_length)
+                _refuse_conflict(path, label, labels.get(label.demo, []))
+                labels.setdefault(label.demo, []).append(label)
+    except UnicodeDecodeError as exc:
+        raise UserInputError(f"{path}: not UTF-8 text (byte {exc.start}); save the labels as UTF-8 CSV") from None
     return labels
+
+
+def _refuse_conflict(path: str, label: HumanLabel, earlier: list[HumanLabel]) -> None:
+    """Two rows that label the same window of the same criterion differently: which one holds is not the
+    file's order to decide."""
+    for other in earlier:
+        overlap = label.first_window <= other.last_window and other.first_window <= label.last_window
+        if other.criterion == label.criterion and overlap and other.kept != label.kept:
+            raise UserInputError(
+                f"{path}: rows {other.row} and {label.row} label {label.criterion} of {label.demo} differently "
+                "in the same window; keep one"
+            )
 
 
 def apply_human_labels(verdict: EpisodeVerdict, labels: list[HumanLabel]) -> EpisodeVerdict:
@@ -119,25 +138,17 @@ def apply_human_labels(verdict: EpisodeVerdict, labels: list[HumanLabel]) -> Epi
 
 def export_segment_labels(annotated_path: str, csv_path: str) -> int:
     """Write the segment labels of an annotated file as a human-label CSV (atomically); returns rows written."""
+    text = io.StringIO(newline="")
+    writer = csv.writer(text)
+    writer.writerow(HEADER)
     rows = 0
-    directory = os.path.dirname(os.path.abspath(csv_path))
-    os.makedirs(directory, exist_ok=True)
     with DemoFile(annotated_path, require_labels=True) as demos:
         length = int(demos.attrs["annotation"]["segment_length"])
-        fd, tmp = tempfile.mkstemp(prefix=".labels_", suffix=".csv", dir=directory)
-        try:
-            with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
-                writer = csv.writer(fh)
-                writer.writerow(HEADER)
-                for demo in demos:
-                    for w, (start, end) in enumerate(window_bounds(demo.num_samples, length)):
-                        for c in CRITERIA:
-                            writer.writerow(
-                                [demo.name, start, end, c, "kept" if demo.itc_segments[c][w] else "violated"]
-                            )
-                            rows += 1
-            os.replace(tmp, csv_path)
-        except BaseException:
-            os.unlink(tmp)
-            raise
+        for demo in demos:
+            for w, (start, end) in enumerate(window_bounds(demo.num_samples, length)):
+                for c in CRITERIA:
+                    writer.writerow([demo.name, start, end, c, "kept" if demo.itc_segments[c][w] else "violated"])
+                    rows += 1
+    os.makedirs(os.path.dirname(os.path.abspath(csv_path)), exist_ok=True)
+    atomic_write(csv_path, text.getvalue())
     return rows

@@ -209,6 +209,7 @@ def annotate_file(
     if os.path.abspath(in_path) == os.path.abspath(out_path):
         raise UserInputError(f"{out_path}: the annotated file must not replace its input")
     with DemoFile(in_path) as source:
+        source.validate()
         human = {}
         if labels_csv:
             human = read_human_labels(labels_csv, {d.name: d.num_samples for d in source}, params.segment_length)

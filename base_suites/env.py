@@ -196,8 +196,6 @@ class LiberoEnv(gym.Env):
         self.domain.sim.forward()
 
     def step(self, action):
-        if self._init_index < 0:
-            raise UserInputError("step() before reset(): reset the env first")
         action = np.asarray(action, dtype=np.float64)
         if action.size != 7:
             raise UserInputError(f"action has shape {action.shape}; expected (7,)")

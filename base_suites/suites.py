@@ -117,8 +117,18 @@ def _count_init_states(init_file: str) -> int:
 
 
 def task_specs(suite: str, tasks: Sequence[int | str] | None = None) -> list[TaskSpec]:
-    """The chosen tasks of a suite (by index or name), or all of them for None."""
-    return list_tasks(suite) if tasks is None else [get_task(suite, t) for t in tasks]
+    """The chosen tasks of a suite (by index or name), or all of them for None; an empty or repeated
+    choice is refused (a repeated task would record or count the same episodes twice)."""
+    if tasks is None:
+        return list_tasks(suite)
+    specs = [get_task(suite, t) for t in tasks]
+    if not specs:
+        raise UserInputError(f"no tasks chosen of suite {suite!r}; name at least one, or none for all")
+    seen = [s.index for s in specs]
+    repeated = sorted({i for i in seen if seen.count(i) > 1})
+    if repeated:
+        raise UserInputError(f"tasks {repeated} of suite {suite!r} chosen more than once; name each task once")
+    return specs
 
 
 def get_task(suite: str, task: int | str) -> TaskSpec:

@@ -235,6 +235,8 @@ class Critic:
                 f"with actions (B, N, {width}) for task {b.task} (chunks of {self.chunk} actions); got {state.shape} "
                 f"and {actions.shape}"
             )
+        if not (np.isfinite(state).all() and np.isfinite(actions).all()):
+            raise UserInputError(f"{self.path}: Critic.q got a state or action holding NaN or infinity")
         scaled = (actions - self._center) * self._inv_half
         np.minimum(np.maximum(scaled, -1.0, out=scaled), 1.0, out=scaled)  # np.clip costs 3x as much here
         z = clip_normalised_((state - b.state_mean) * b.state_inv_std)  # as `Normalization.observations`

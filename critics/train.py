@@ -249,7 +249,9 @@ def train_critic(
                     }
                 )
             if step % cfg.checkpoint_every == 0 or step == cfg.steps:
-                refuse_divergence("train-critic", f"step {step}", {k: float(v) for k, v in losses.items()}, run.loss)
+                refuse_divergence(
+                    "train-critic", f"step {step}", {k: float(v.detach()) for k, v in losses.items()}, run.loss
+                )
                 atomic_torch_save(ckpt_path, run.state(step, cfg, fingerprint))
             bar.update(1)
         bar.close()

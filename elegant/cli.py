@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Callable, Sequence
+from typing import NoReturn
 
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], object]]] = {}
 
@@ -28,7 +30,18 @@ def command(name: str, help_text: str):
 
 
 def _print_json(result: object) -> None:
-    print(json.dumps(result, indent=2, default=str))
+    """Print a command's result as strict JSON: NaN or infinity (an undefined rate) become null."""
+    print(json.dumps(_strict(result), indent=2, default=str, allow_nan=False))
+
+
+def _strict(value: object) -> object:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_strict(v) for v in value]
+    return value
 
 
 def _suites_args(p: argparse.ArgumentParser) -> None:
@@ -62,9 +75,12 @@ def _task_list(text: str | None) -> list[int] | None:
     if text is None:
         return None
     try:
-        return [int(t) for t in text.split(",") if t.strip()]
+        tasks = [int(t) for t in text.split(",") if t.strip()]
     except ValueError:
-        raise UserInputError(f"--tasks {text!r}: expected comma-separated task indices, e.g. 0,3") from None
+        tasks = []
+    if not tasks:
+        raise UserInputError(f"--tasks {text!r}: expected comma-separated task indices, e.g. 0,3")
+    return tasks
 
 
 def parse_indices(text: str | None, flag: str) -> list[int] | None:
@@ -459,11 +475,18 @@ def _quickstart(args: argparse.Namespace) -> dict:
     return {k: v for k, v in result.items() if k not in ("per_suite", "per_task")}
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with a mistake reported in one line (argparse's default prints the whole usage first)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="elegant", description="Measure and improve how elegantly policies execute LIBERO tasks."
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_OneLineParser)
     for name, (help_text, add_arguments, run) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text, allow_abbrev=False)
         add_arguments(p)

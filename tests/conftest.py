@@ -37,14 +37,14 @@ def interrupted_at_second_episode(monkeypatch, collect_call) -> None:
     monkeypatch.setattr(collect, "record_episode", real_record)
 
 
-def load_benchmark(name: str):
-    """A module under benchmarks/ (those are scripts, not a package: torchrl ships a top-level package
-    named `benchmarks` too), imported by path once and cached in sys.modules under `name`."""
+def load_benchmark(name: str, folder: str = "benchmarks"):
+    """A module under benchmarks/ or another script folder (scripts, not packages: torchrl ships a
+    top-level package named `benchmarks` too), imported by path once and cached in sys.modules."""
     import importlib.util
     import sys
 
     if name not in sys.modules:
-        path = os.path.join(os.path.dirname(__file__), os.pardir, "benchmarks", f"{name}.py")
+        path = os.path.join(os.path.dirname(__file__), os.pardir, folder, f"{name}.py")
         spec = importlib.util.spec_from_file_location(name, path)
         module = importlib.util.module_from_spec(spec)
         sys.modules[name] = module

@@ -168,3 +168,30 @@ def test_a_full_disk_keeps_the_finished_demos_for_resume(tmp_path, monkeypatch):
     assert sorted(os.listdir(out + ".partial")) == ["demo_0.h5", "header.h5"]
     write_demos(out, resume=True)
     assert file_contents(out) == file_contents(write_demos(str(tmp_path / "reference.hdf5")))
+
+
+def test_a_running_eval_holds_its_run_directory(tmp_path):
+    from base_suites.runtime.locks import output_lock
+    from elegant.evaluation.runner import evaluate
+
+    out = tmp_path / "run"
+    with output_lock(out):
+        with pytest.raises(UserInputError, match="run: in use by another run"):
+            evaluate("libero_object", [0], lambda obs: np.zeros(7), mode="base", out=out, episodes=1, progress=False)
+    assert not out.exists() or not any(out.iterdir())  # the refused run wrote nothing
+
+
+def test_atomic_files_follow_the_umask_and_printed_json_stays_json(tmp_path, capsys):
+    import json
+
+    from base_suites.runtime import atomic_write
+    from elegant.cli import _print_json
+
+    previous = os.umask(0o027)
+    try:
+        atomic_write(tmp_path / "a.json", "{}")
+    finally:
+        os.umask(previous)
+    assert os.stat(tmp_path / "a.json").st_mode & 0o777 == 0o640
+    _print_json({"rate": float("nan"), "per_task": [1.0, float("inf")]})
+    assert json.loads(capsys.readouterr().out) == {"rate": None, "per_task": [1.0, None]}

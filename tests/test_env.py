@@ -160,3 +160,23 @@ def test_rgb_observation_is_upright_and_rendered():
     # Upright: the floor (bottom rows) is closer to the camera and brighter-varying than the top wall.
     assert not np.array_equal(img, env.domain._get_observations()["agentview_image"])
     env.close()
+
+
+def test_mistaken_calls_are_refused_in_one_line():
+    with pytest.raises(UserInputError, match="max_steps must be a positive number"):
+        make_env("libero_goal", 0, max_steps=0)
+    with pytest.raises(UserInputError, match="camera_size must be a positive number"):
+        make_env("libero_goal", 0, obs="rgb", camera_size=0)
+    env = make_env("libero_goal", 0, seed=0)  # reset on construction: a first step is well defined
+    try:
+        with pytest.raises(UserInputError, match=r"reset options \['init_sate'\] unknown"):
+            env.reset(options={"init_sate": 3})
+        env.reset(seed=0)
+        state = env.get_sim_state()
+        with pytest.raises(UserInputError, match=r"action has shape \(6,\)"):
+            env.step(np.zeros(6))
+        with pytest.raises(UserInputError, match="action holds NaN or infinity"):
+            env.step(np.array([0, 0, np.nan, 0, 0, 0, 0]))
+        np.testing.assert_array_equal(env.get_sim_state(), state)  # refused before any physics
+    finally:
+        env.close()

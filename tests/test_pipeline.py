@@ -235,7 +235,7 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
         tiny(evaluation={"jiti": {"warmup": "always"}})
     with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):  # refused before any data is made
         tiny(evaluation={"jiti": {"trigger": "none"}})
-    with pytest.raises(UserInputError, match="JITI n_candidates must be >= 2"):
+    with pytest.raises(UserInputError, match="JITI n_candidates must lie in 2..4096"):
         tiny(evaluation={"jiti": {"n_candidates": 1}})
     assert not os.path.exists(tmp_path / "other")
 

@@ -24,6 +24,7 @@ TRIGGERS: tuple[str, ...] = get_args(TriggerName)
 WARMUPS: tuple[str, ...] = get_args(Warmup)
 DEFAULT_THRESHOLD = 1.0
 DEFAULT_NOISE_SCALE = 0.1
+MAX_CANDIDATES = 4096  # far beyond any useful count; a typo of more would exhaust memory at the first decision
 
 
 @dataclass(frozen=True)
@@ -73,9 +74,10 @@ class JITIConfig:
             raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
         if not int(self.window) >= 1:
             raise UserInputError(f"JITI window must be >= 1, got {self.window}")
-        if int(self.n_candidates) < 2:
+        if not 2 <= int(self.n_candidates) <= MAX_CANDIDATES:
             raise UserInputError(
-                f"JITI n_candidates must be >= 2 (the base action plus alternatives), got {self.n_candidates}"
+                f"JITI n_candidates must lie in 2..{MAX_CANDIDATES} (the base action plus alternatives, each "
+                f"scored by the critic at every re-ranked decision), got {self.n_candidates}"
             )
         if not (float(self.threshold) >= 0 and float(self.noise_scale) >= 0):
             raise UserInputError(
