@@ -7,6 +7,7 @@ there. A resumed writer continues after the demos the journal holds.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -19,6 +20,7 @@ import numpy as np
 
 from annotations.format import CRITERIA, FORMAT_VERSION, demo_index, demo_name, task_key
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.io import atomic_write
 from base_suites.runtime.locks import output_lock
 
 _JSON_ATTRS = ("knobs", "knob_events", "perturbation", "violated", "fixture_layout", "rollout", "explored_steps")
@@ -89,14 +91,16 @@ def _write_attrs(node: h5py.HDFObject, attrs: Mapping[str, Any]) -> None:
 
 
 class DemoFile:
-    """A demos file opened for reading; validates the layout version and required fields."""
+    """A demos file opened for reading; validates the layout version and required fields. `image`: read
+    these bytes (a whole file, e.g. one assembled in memory) instead of the file at `path`, which then
+    only names it in messages."""
 
-    def __init__(self, path: str | os.PathLike, *, require_labels: bool = False) -> None:
+    def __init__(self, path: str | os.PathLike, *, require_labels: bool = False, image: bytes | None = None) -> None:
         self.path = str(path)
-        if not os.path.exists(self.path):
+        if image is None and not os.path.exists(self.path):
             raise UserInputError(f"{self.path}: no such file")
         try:
-            self._h5 = h5py.File(self.path, "r")
+            self._h5 = h5py.File(self.path if image is None else io.BytesIO(image), "r")
         except OSError as exc:
             raise UserInputError(f"{self.path}: not a readable HDF5 file ({exc.__class__.__name__})") from None
         if "data" not in self._h5:
@@ -284,19 +288,20 @@ class DemoWriter:
             if state_layout is not None:
                 _write_attrs(h5, {"task_key": demo.task_key, "state_layout": state_layout})
 
-        _durable_h5(self._episode_path(self._count), fill)
+        atomic_write(self._episode_path(self._count), _h5_image(fill))
         self._count += 1
         return name
 
     def finish(self) -> str:
-        """Assemble the journal into `path`, check that it reads back, publish it and remove the journal."""
+        """Assemble the journal into the final file in memory, read every demo of it back, publish it
+        (atomically) and remove the journal."""
         try:
-            assembling = self.path + ".assembling"
             attrs = self.attrs
             layouts = dict(attrs.get("state_layouts") or {})
-            total = 0
-            with h5py.File(assembling, "w") as out:
+
+            def assemble(out: h5py.File) -> None:
                 data = out.create_group("data")
+                total = 0
                 for i in range(self._count):
                     with h5py.File(self._episode_path(i), "r") as episode:
                         episode.copy(episode["demo"], data, name=demo_name(i))
@@ -305,14 +310,13 @@ class DemoWriter:
                         if "state_layout" in extra:
                             layouts.setdefault(extra["task_key"], extra["state_layout"])
                 _write_attrs(data, {**attrs, "total": total, "state_layouts": layouts})
-            _sync(assembling)
-            with DemoFile(assembling) as check:  # every dataset of every demo reads back
+
+            image = _h5_image(assemble)
+            with DemoFile(self.path, image=image) as check:  # every dataset of every demo reads back
                 if len(check) != self._count:
-                    raise OSError(f"{assembling}: {len(check)} demos read back, {self._count} written")
-                for name in check.names:
-                    check.demo(name)
-            os.replace(assembling, self.path)
-            _sync(os.path.dirname(os.path.abspath(self.path)))
+                    raise OSError(f"{self.path}: {len(check)} demos read back, {self._count} written")
+                check.validate()
+            atomic_write(self.path, image)
             shutil.rmtree(self.partial)
             return self.path
         finally:
@@ -333,7 +337,7 @@ class DemoWriter:
         return os.path.join(self.partial, f"{demo_name(i)}.h5")
 
     def _write_header(self, attrs: Mapping[str, Any]) -> None:
-        _durable_h5(os.path.join(self.partial, _HEADER), lambda h5: _write_attrs(h5, attrs))
+        atomic_write(os.path.join(self.partial, _HEADER), _h5_image(lambda h5: _write_attrs(h5, attrs)))
 
     def _recover(self) -> int:
         """Count the journal's readable demos from demo_0 on; drop everything after the first gap."""
@@ -349,19 +353,14 @@ class DemoWriter:
 _HEADER = "header.h5"
 
 
-def _durable_h5(path: str, fill: Callable[[h5py.File], None]) -> None:
-    """Write an HDF5 file whole or not at all: `fill` it under a temporary name, sync, rename, sync the folder."""
-    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp")
-    try:
-        with h5py.File(tmp, "w") as h5:
-            fill(h5)
-        _sync(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
-    _sync(os.path.dirname(path))
+def _h5_image(fill: Callable[[h5py.File], None]) -> bytes:
+    """The bytes of an HDF5 file that `fill` writes, built in memory: the file reaches the disk only through
+    `atomic_write`, whole or not at all, and a full disk is a plain OSError there (HDF5 failing a write of
+    its own can crash the interpreter)."""
+    buffer = io.BytesIO()
+    with h5py.File(buffer, "w") as h5:
+        fill(h5)
+    return buffer.getvalue()
 
 
 def _reads(path: str, probe: Callable[[h5py.File], Any]) -> bool:
@@ -372,11 +371,3 @@ def _reads(path: str, probe: Callable[[h5py.File], Any]) -> bool:
         return True
     except (OSError, KeyError):
         return False
-
-
-def _sync(path: str) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

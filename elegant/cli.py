@@ -508,8 +508,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except OSError as exc:  # a full disk, a lost mount, a permission changed mid-run: finished work stays
         where = f"{exc.filename}: " if exc.filename else ""
+        cause = " ".join(str(exc.strerror or exc).split())  # HDF5's messages span lines
         print(
-            f"elegant {args.command}: error: {where}{exc.strerror or exc}; "
+            f"elegant {args.command}: error: {where}{cause}; "
             "what finished is kept, rerun with --resume where supported",
             file=sys.stderr,
         )

@@ -1,6 +1,7 @@
 """Whole-file writes through a temp file in the same directory and `os.replace`.
 
-A reader, or a run resumed after a kill, sees the old file or the new one, never half of one. Every
+A reader, or a run resumed after a kill, sees the old file or the new one, never half of one; a full disk
+fails the write with an OSError and leaves the old file. Every
 package writes its outputs (summaries, checkpoints, plots, configs) through here.
 """
 
@@ -28,10 +29,17 @@ def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if os.path.exists(tmp):
             os.remove(tmp)
+        if isinstance(exc, OSError) and exc.filename is None:  # a failed write names no file: name the target
+            raise OSError(exc.errno, exc.strerror, path) from exc
         raise
+    folder = os.open(os.path.dirname(os.path.abspath(path)), os.O_RDONLY)
+    try:  # the rename itself survives a power cut only once the folder is synced
+        os.fsync(folder)
+    finally:
+        os.close(folder)
 
 
 def _umask() -> int:
