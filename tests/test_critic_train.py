@@ -308,3 +308,20 @@ def test_a_chunk_critic_scores_flattened_chunks_normalised_step_by_step(annotate
     assert action_chunks(np.arange(6).reshape(3, 2), 2).tolist() == [[0, 1, 2, 3], [2, 3, 4, 5], [4, 5, 4, 5]]
     result = evaluate_critic(out, [annotated])  # held-out scoring builds each step's chunk from the demo
     assert result["transitions"] == summary["transitions"] and 0.0 <= result["auroc"] <= 1.0
+
+
+def test_divergence_is_refused_naming_the_step_and_what_went_non_finite():
+    import math
+
+    import torch
+
+    from critics.divergence import refuse_divergence
+
+    net = torch.nn.Linear(2, 2)
+    refuse_divergence("train-critic", "step 3", {"loss_qvalue": 1.0}, net)  # finite: nothing happens
+    with pytest.raises(UserInputError, match=r"train-critic: training diverged at step 3 \(non-finite loss_cql\)"):
+        refuse_divergence("train-critic", "step 3", {"loss_qvalue": 1.0, "loss_cql": math.nan}, net)
+    with torch.no_grad():
+        net.weight[0, 0] = math.inf
+    with pytest.raises(UserInputError, match=r"at step 4 \(non-finite weights\)"):
+        refuse_divergence("train-critic", "step 4", {"loss_qvalue": 1.0}, net)

@@ -310,3 +310,17 @@ def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tm
             **other,
         )
     assert not (tmp_path / "other_settings" / "episodes.jsonl").exists()
+
+
+class ForeignCritic(ReachCritic):
+    def bind(self, metadata):
+        raise UserInputError("critic: observation layout of env task libero_object/0 differs")
+
+
+def test_a_run_refused_at_its_first_episode_leaves_nothing_and_the_fix_runs_there(tmp_path):
+    out = tmp_path / "refused"
+    with pytest.raises(UserInputError, match="layout of env task libero_object/0 differs"):
+        evaluate(SUITE, [TASK], PlungePolicy(), ForeignCritic(), out=out, progress=False, episodes=1, max_steps=3)
+    assert not out.exists()
+    summary = evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), out=out, progress=False, episodes=1, max_steps=3)
+    assert summary["episodes"] == 1

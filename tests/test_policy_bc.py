@@ -300,6 +300,14 @@ def test_training_refuses_bad_input(demos, tmp_path):
     clash = write_demos(tmp_path / "clash.hdf5", demos_per_task=1, steps=3, layouts=other)
     with pytest.raises(UserInputError, match=r"state_layouts\['libero_object/1'\] differs"):
         train_policy([demos, clash], str(tmp_path / "x"), epochs=1, progress=False)
+    assert not (tmp_path / "x").exists()  # refused inputs leave no output directory
+
+
+def test_training_that_diverges_stops_before_saving_non_finite_weights(demos, tmp_path):
+    out = tmp_path / "diverged"
+    with pytest.raises(UserInputError, match="train-policy: training diverged at epoch 1 .*nothing was saved"):
+        train_policy([demos], str(out), epochs=2, lr=1e30, seed=0, **SMALL)
+    assert not (out / "model.pt").exists() and not (out / "checkpoint.pt").exists()
 
 
 def test_train_policy_cli_passes_its_options_and_refuses_in_one_line(tmp_path, capsys):

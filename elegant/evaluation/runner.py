@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -139,6 +140,16 @@ def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
     atomic_write(path, json.dumps(config, indent=2))
 
 
+def _remove_refused_run(out: Path) -> None:
+    """Remove what a run refused before any episode finished wrote, so that the corrected command can
+    use the same directory."""
+    for name in ("config.json", "episodes.jsonl"):
+        (out / name).unlink(missing_ok=True)
+    shutil.rmtree(out / "traces", ignore_errors=True)
+    if not any(out.iterdir()):
+        out.rmdir()
+
+
 def _run_episode(env, agent: JITI, monitor, init_index: int, reset_seed: int) -> tuple[dict[str, Any], Any]:
     """One rollout (`base_suites.rollout.run_episode`, judged by the ITC monitor); returns the episode's
     numbers and the ITC verdict."""
@@ -229,6 +240,7 @@ def evaluate(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with output_lock(out):  # one writer per run directory
+        fresh = not (out / "config.json").exists()
         _prepare_run_dir(out, record)
         log = EpisodeLog(out / "episodes.jsonl")
         done = log.done()
@@ -245,18 +257,23 @@ def evaluate(
             record,
             str(out),
         )
-        total = len(indices) * int(cfg.episodes)
-        with tqdm(
-            total=total, initial=total - len(jobs), desc=f"eval {cfg.mode}", unit="ep", disable=not progress
-        ) as bar:
-            with run_jobs(make_worker, jobs, workers) as results:
-                for _, episode in results:
-                    log.append(episode)
-                    bar.update(1)
-                    bar.set_postfix(
-                        success=f"{np.mean([r['success'] for r in log.records]):.2f}",
-                        esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}",
-                    )
+        try:
+            total = len(indices) * int(cfg.episodes)
+            with tqdm(
+                total=total, initial=total - len(jobs), desc=f"eval {cfg.mode}", unit="ep", disable=not progress
+            ) as bar:
+                with run_jobs(make_worker, jobs, workers) as results:
+                    for _, episode in results:
+                        log.append(episode)
+                        bar.update(1)
+                        bar.set_postfix(
+                            success=f"{np.mean([r['success'] for r in log.records]):.2f}",
+                            esr=f"{np.mean([r['elegant'] for r in log.records]):.2f}",
+                        )
+        except UserInputError:
+            if fresh and not log.records:  # refused at its first episode (e.g. a critic of other tasks)
+                _remove_refused_run(out)
+            raise
         records = run_records(log.records, record)
         summary = {"config": record, **summarize(records)}
         atomic_write(out / "summary.json", json.dumps(summary, indent=2))
