@@ -28,15 +28,19 @@ import numpy as np
 from base_suites._libero import libero_modules
 from base_suites.control import PHYSICS, FastControl
 from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
+from base_suites.rotations import quat_to_axis_angle
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.sim_view import SimView
 from base_suites.suites import TaskSpec, get_task
 
-ObsMode = Literal["lowdim", "rgb", "both"]
+ObsMode = Literal["lowdim", "rgb", "both", "vla"]
 OBS_MODES: tuple[str, ...] = get_args(ObsMode)
 ROBOT_LAYOUT = (("robot0_eef_pos", 3), ("robot0_eef_quat", 4), ("robot0_gripper_qpos", 2), ("robot0_joint_pos", 7))
 SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1.0])
 CAMERA = "agentview"
+WRIST_CAMERA = "robot0_eye_in_hand"
+VLA_KEYS = ("image", "wrist_image", "vla_state")  # besides "state", in obs="vla"
+VLA_CAMERA_SIZE = 256  # what openpi's and LeRobot's LIBERO clients render
 
 
 @contextmanager
@@ -65,7 +69,7 @@ class LiberoEnv(gym.Env):
         max_steps: int | None = None,
         perturbation: Sequence[Perturbation] = (),
         settle_steps: int = 10,
-        camera_size: int = 128,
+        camera_size: int | None = None,
         physics: str = "fast",
     ) -> None:
         if obs not in OBS_MODES:
@@ -91,9 +95,11 @@ class LiberoEnv(gym.Env):
         self._fixed_init = init_state
         if init_state is not None and not 0 <= init_state < len(self._init_states):
             raise UserInputError(f"init_state {init_state} out of range: expected 0..{len(self._init_states) - 1}")
+        if camera_size is None:
+            camera_size = VLA_CAMERA_SIZE if obs == "vla" else 128
         if int(camera_size) != camera_size or camera_size < 1:
             raise UserInputError(f"camera_size must be a positive number of pixels, got {camera_size!r}")
-        self._camera_size = camera_size
+        self._camera_size = int(camera_size)
         with _global_numpy_seeded(0 if seed is None else int(seed)):
             self._env = self._build(plan.env_kwargs)
         self.domain = self._env.env
@@ -105,10 +111,14 @@ class LiberoEnv(gym.Env):
         self._layout = self._state_layout()
         dim = sum(size for _, size in self._layout)
         spaces = {}
-        if obs in ("lowdim", "both"):
+        image = gym.spaces.Box(0, 255, shape=(self._camera_size, self._camera_size, 3), dtype=np.uint8)
+        if obs in ("lowdim", "both", "vla"):
             spaces["state"] = gym.spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float64)
         if obs in ("rgb", "both"):
-            spaces[CAMERA] = gym.spaces.Box(0, 255, shape=(camera_size, camera_size, 3), dtype=np.uint8)
+            spaces[CAMERA] = image
+        if obs == "vla":
+            spaces.update(image=image, wrist_image=image)
+            spaces["vla_state"] = gym.spaces.Box(-np.inf, np.inf, shape=(8,), dtype=np.float64)
         self.observation_space = gym.spaces.Dict(spaces)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float64)
         self.metadata = {
@@ -135,7 +145,7 @@ class LiberoEnv(gym.Env):
             bddl_file_name=self.task.bddl_file,
             use_camera_obs=render,
             has_offscreen_renderer=render,
-            camera_names=[CAMERA] if render else [],
+            camera_names=[CAMERA, WRIST_CAMERA] if self.obs_mode == "vla" else [CAMERA] if render else [],
             camera_heights=self._camera_size,
             camera_widths=self._camera_size,
             hard_reset=False,
@@ -256,7 +266,17 @@ class LiberoEnv(gym.Env):
             out["state"] = self.state_vector()
         if CAMERA in self.observation_space.spaces:
             out[CAMERA] = self._image(raw)
+        if self.obs_mode == "vla":  # rotated 180 degrees, as openpi's and LeRobot's LIBERO clients feed them
+            out["image"] = np.ascontiguousarray(raw[f"{CAMERA}_image"][::-1, ::-1])
+            out["wrist_image"] = np.ascontiguousarray(raw[f"{WRIST_CAMERA}_image"][::-1, ::-1])
+            out["vla_state"] = self.vla_state()
         return out
+
+    def vla_state(self) -> np.ndarray:
+        """The 8-D proprioceptive state of LIBERO's VLA clients: end-effector position, its orientation as
+        an axis-angle vector, the two gripper joints."""
+        view = self.sim
+        return np.concatenate([view.eef_position(), quat_to_axis_angle(view.hand_quaternion()), view.gripper_joints()])
 
     def goal_status(self) -> dict[str, bool]:
         """Truth value of each goal predicate, keyed like 'on(bowl_1,plate_1)'."""
@@ -372,13 +392,16 @@ def make_env(
     max_steps: int | None = None,
     perturbation: str | Perturbation | Sequence[Perturbation] | None = None,
     settle_steps: int = 10,
-    camera_size: int = 128,
+    camera_size: int | None = None,
     physics: str = "fast",
 ) -> LiberoEnv:
     """Build one LIBERO / LIBERO-PRO task as a gymnasium env.
 
     `perturbation` takes operators or a string such as "init:3,language@shipped" (axis[:seed][@mode]).
     `physics`: "fast" (the default) or "robosuite", the same MuJoCo states either way (`base_suites.control`).
+    `obs`: "lowdim" (the `state`), "rgb" (the upright `agentview` image), "both", or "vla" (LIBERO's VLA
+    convention: `image` and `wrist_image` rotated 180 degrees, the 8-D `vla_state`, and the `state`);
+    `camera_size`: image side in pixels (default 256 for "vla", else 128).
     """
     if isinstance(perturbation, str) or perturbation is None:
         perturbations = parse_perturbations(perturbation, default_seed=seed or 0)

@@ -180,3 +180,27 @@ def test_mistaken_calls_are_refused_in_one_line():
         np.testing.assert_array_equal(env.get_sim_state(), state)  # refused before any physics
     finally:
         env.close()
+
+
+def test_vla_observation_follows_liberos_vla_clients():
+    """obs="vla": both cameras rotated 180 degrees (as openpi's and LeRobot's LIBERO clients feed them), the
+    8-D state (eef position, axis-angle, gripper joints) equal to robosuite's own observables, the full state."""
+    env = make_env("libero_object", 0, seed=0, obs="vla", camera_size=32)
+    try:
+        obs, _ = env.reset(seed=0)
+        assert set(obs) == {"state", "image", "wrist_image", "vla_state"}
+        raw = env.domain._get_observations(force_update=True)
+        for key, camera in (("image", "agentview"), ("wrist_image", "robot0_eye_in_hand")):
+            assert obs[key].shape == (32, 32, 3) and obs[key].dtype == np.uint8
+            np.testing.assert_array_equal(obs[key], raw[f"{camera}_image"][::-1, ::-1])
+        assert not np.array_equal(obs["image"], obs["wrist_image"])
+        quat = raw["robot0_eef_quat"]  # (x, y, z, w)
+        angle = 2 * np.arccos(quat[3])
+        expected = np.concatenate(
+            [raw["robot0_eef_pos"], quat[:3] / np.sin(angle / 2) * angle, raw["robot0_gripper_qpos"]]
+        )
+        np.testing.assert_allclose(obs["vla_state"], expected, atol=1e-9)
+        np.testing.assert_array_equal(obs["state"], env.state_vector())
+        assert env.observation_space.contains(obs)
+    finally:
+        env.close()

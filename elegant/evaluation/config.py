@@ -22,7 +22,11 @@ class EvalConfig:
     seed: int = setting(0, "the run's seed: each episode's start and reset seed derive from it")
     perturbation: str | None = setting(None, "LIBERO-PRO perturbations, e.g. init:3,language")
     max_steps: int | None = setting(None, "episode horizon (default: the suite's)")
-    obs: ObsMode = setting("lowdim", "what the policy observes: lowdim (state), rgb (image) or both")
+    obs: ObsMode = setting(
+        "lowdim",
+        "what the policy observes: lowdim (state), rgb (image), both, or vla (two cameras rotated as LIBERO's VLA "
+        "clients feed them, the 8-D state, the instruction); the critic judges the simulator state either way",
+    )
     init_states: tuple[int, ...] | None = setting(
         None, "start only from these shipped init states, e.g. 25-49 (default: all)", parse=index_list
     )

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from base_suites.rotations import quat_to_axis_angle
 from base_suites.runtime.errors import UserInputError
 from elegant.policies.protocol import (
     ACTION_DIM,
@@ -69,10 +70,7 @@ TORCHRL_LIBERO_STATE = LayoutSlice("robot0_eef_pos", "robot0_eef_quat", "robot0_
 def lerobot_libero_state(state: np.ndarray, metadata: Mapping[str, Any] | None) -> np.ndarray:
     """LeRobot's 8-D LIBERO "observation.state": eef position, eef axis-angle, gripper joints."""
     pos, quat, grip = np.split(TORCHRL_LIBERO_STATE(state, metadata), [3, 7])
-    w = float(np.clip(quat[3], -1.0, 1.0))  # robosuite quaternions are (x, y, z, w)
-    den = np.sqrt(1.0 - w * w)
-    axis_angle = np.zeros(3) if den < 1e-10 else quat[:3] * (2.0 * np.arccos(w) / den)
-    return np.concatenate([pos, axis_angle, grip])
+    return np.concatenate([pos, quat_to_axis_angle(quat), grip])
 
 
 class PolicyAdapter:
