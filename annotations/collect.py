@@ -84,9 +84,10 @@ class EpisodeSource(Protocol):
 @dataclass(frozen=True)
 class Collection:
     """Which episodes a recorded file holds and what determines them: `episodes` per task of `tasks` of
-    `suite` (None: every task), from `seed`; `horizon(spec)` is each task's episode limit; `perturbation`
-    (e.g. "init@nudge") is applied to every env; `settings` (what else determines the episodes) is stored
-    in the file's `collection` attribute, and a resumed file must match it. `desc` labels the progress bar."""
+        `suite` (None: every task), from `seed`; `horizon(spec)` is each task's episode limit; `perturbation`
+        (e.g. "init@nudge") is applied to every env; `obs` is the envs' observation mode (what the source sees;
+    the file stores the state whatever it is); `settings` (what else determines the episodes) is stored
+        in the file's `collection` attribute, and a resumed file must match it. `desc` labels the progress bar."""
 
     suite: str
     tasks: Sequence[int] | None
@@ -95,6 +96,7 @@ class Collection:
     horizon: Callable[[Any], int]
     settings: Mapping[str, Any]
     perturbation: str | None = None
+    obs: str = "lowdim"
     desc: str = "episodes"
 
 
@@ -117,10 +119,11 @@ def collect_episodes(
     from tqdm import tqdm
 
     suite, tasks, episodes, seed = collection.suite, collection.tasks, collection.episodes, collection.seed
-    horizon, settings, perturbation, desc = (
+    horizon, settings, perturbation, obs, desc = (
         collection.horizon,
         collection.settings,
         collection.perturbation,
+        collection.obs,
         collection.desc,
     )
     check_output(out, "file", resume=resume, overwrite=overwrite)
@@ -155,7 +158,13 @@ def collect_episodes(
             if pos * episodes + i >= done_before
         ]
         recorder = partial(
-            EpisodeRecorder, make_source, suite, seed, {s.index: horizon(s) for s in specs}, perturbation
+            EpisodeRecorder,
+            make_source,
+            suite,
+            seed,
+            {s.index: horizon(s) for s in specs},
+            perturbation,
+            obs,
         )
         bar = tqdm(
             total=len(specs) * episodes, initial=done_before, desc=f"{desc} {suite}", disable=not progress, unit="ep"
@@ -226,13 +235,15 @@ class EpisodeRecorder:
         seed: int,
         horizons: Mapping[int, int],
         perturbation: str | None,
+        obs: str = "lowdim",
     ) -> None:
-        self.source, self.suite, self.seed, self.horizons, self.perturbation = (
+        self.source, self.suite, self.seed, self.horizons, self.perturbation, self.obs = (
             make_source(),
             suite,
             seed,
             horizons,
             perturbation,
+            obs,
         )
         self._env: LiberoEnv | None = None
         self._spec: Any = None
@@ -247,6 +258,7 @@ class EpisodeRecorder:
                 seed=self.seed,
                 max_steps=self.horizons[job.task_index],
                 perturbation=self.perturbation,
+                obs=self.obs,
             )
             self.source.for_task(self._env, self._spec)
         env, spec, source = self._env, self._spec, self.source

@@ -16,6 +16,12 @@ from typing import NoReturn
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], object]]] = {}
 
 
+POLICY_HELP = (
+    "a policy: a train-policy directory, module:factory[:JSON kwargs] (a Python entry point returning a "
+    "policy), or ws://host:port / openpi://host:port (an openpi policy server; pip install -e .[openpi])"
+)
+
+
 def command(name: str, help_text: str):
     """Register a subcommand: the decorated function adds its arguments, `run` does the work."""
 
@@ -149,7 +155,7 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
-    p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
+    p.add_argument("--policy", required=True, help=POLICY_HELP)
     p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")
     p.add_argument("--resume", action="store_true", help="continue OUT.partial")
     _overwrite_arg(p)
@@ -332,7 +338,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--suite", required=True)
     p.add_argument("--tasks", help="comma-separated task indices (default: all)")
-    p.add_argument("--policy", required=True, help="policy directory (from train-policy)")
+    p.add_argument("--policy", required=True, help=POLICY_HELP)
     p.add_argument(
         "--critic",
         help="critic directory (from train-critic), or comma-separated ones: an ensemble whose members "
@@ -364,6 +370,41 @@ def _eval(args: argparse.Namespace) -> dict:
         **settings,
     )
     return {k: v for k, v in summary.items() if k != "per_task"}
+
+
+def _serve_policy_args(p: argparse.ArgumentParser) -> None:
+    from elegant.policies.protocol import add_policy_act_argument
+
+    p.add_argument("policy", help="policy directory (from train-policy)")
+    p.add_argument("--port", type=int, default=8000, help="port to listen on (0: any free one; default: 8000)")
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default: 127.0.0.1, this machine only)")
+    p.add_argument("--api-key-file", help="require the key in this file (openpi-client's Api-Key header)")
+    add_policy_act_argument(p)
+
+
+@command("serve-policy", "serve a train-policy policy over openpi's websocket protocol (stop with Ctrl-C)")(
+    _serve_policy_args
+)
+def _serve_policy(args: argparse.Namespace) -> None:
+    from base_suites.runtime.errors import UserInputError
+    from elegant.policies.server import serve_policy
+
+    if not 0 <= args.port <= 65535:
+        raise UserInputError(f"--port {args.port}: expected 0..65535")
+    api_key = None
+    if args.api_key_file is not None:
+        try:
+            with open(args.api_key_file, encoding="utf-8") as f:
+                api_key = f.read().strip()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise UserInputError(f"{args.api_key_file}: cannot read the API key ({exc.__class__.__name__})") from None
+        if not api_key:
+            raise UserInputError(f"{args.api_key_file}: the API key file is empty")
+
+    def ready(address: str) -> None:
+        print(f"serving {args.policy} at {address} (Ctrl-C stops)", file=sys.stderr, flush=True)
+
+    serve_policy(args.policy, host=args.host, port=args.port, act=args.policy_act, api_key=api_key, ready=ready)
 
 
 def _gate_args(p: argparse.ArgumentParser) -> None:

@@ -14,4 +14,6 @@ fi
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --disable-pip-version-check "torch==2.13.0"
 .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test]"
+# openpi-client without its numpy<2 pin (README: "Policies that are not ours")
+.venv/bin/python -m pip install -q --disable-pip-version-check --no-deps "openpi-client==0.1.2"
 .venv/bin/python -c "import torch, torchrl, libero.libero, base_suites" >/dev/null

@@ -184,6 +184,21 @@ def test_lerobot_adapter_passes_images_and_mapped_state():
     assert batch["observation.state"].shape == (1, 8)
 
 
+def test_lerobot_adapter_feeds_the_vla_observation_under_lerobots_libero_keys():
+    inner = QueuePolicy()
+    policy = LeRobotPolicy(inner)
+    policy.reset(METADATA)
+    image, wrist = np.full((8, 8, 3), 255, dtype=np.uint8), np.zeros((8, 8, 3), dtype=np.uint8)
+    vla_state = np.arange(8, dtype=np.float64)
+    policy({"state": obs_of(4)["state"], "image": image, "wrist_image": wrist, "vla_state": vla_state})
+    batch = inner.batches[-1]
+    assert (
+        float(batch["observation.images.image"].max()) == 1.0 and float(batch["observation.images.image2"].max()) == 0
+    )
+    np.testing.assert_array_equal(batch["observation.state"].numpy()[0], vla_state)
+    assert batch["task"] == ["pick up the bowl"] and "agentview" not in str(sorted(batch))
+
+
 def test_state_selection_by_layout_name():
     state = np.arange(19, dtype=np.float64)
     np.testing.assert_array_equal(TORCHRL_LIBERO_STATE(state, METADATA), np.arange(9))

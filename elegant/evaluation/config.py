@@ -14,6 +14,14 @@ from elegant.policies.bc_config import DEFAULT_MODES
 from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, PolicyAct
 
 
+def _replan_steps_setting() -> Any:
+    """`replan_steps`, declared once for eval and rollouts."""
+    return setting(
+        None,
+        "a served policy's actions executed per chunk (default: the server's chunk, else openpi's LIBERO default 5)",
+    )
+
+
 @dataclass(frozen=True)
 class EvalConfig:
     """What an evaluation run is, besides the suite, tasks, policy and critic it evaluates."""
@@ -36,6 +44,7 @@ class EvalConfig:
         "at every decision (sample, as LIBERO runs its BC policies) or the mean of a drawn component (component, "
         "LIBERO's low_eval_noise)",
     )
+    replan_steps: int | None = _replan_steps_setting()
     gate: str | None = setting(
         None, "mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)"
     )
@@ -54,6 +63,8 @@ class EvalConfig:
             raise UserInputError(f"max_steps must be >= 1 (or None for the suite's horizon), got {self.max_steps}")
         if self.policy_act not in POLICY_ACTS:
             raise unknown_choice("policy act", self.policy_act, POLICY_ACTS)
+        if self.replan_steps is not None and not int(self.replan_steps) >= 1:
+            raise UserInputError(f"replan_steps must be >= 1, got {self.replan_steps}")
         if self.gate is not None and self.jiti.mode != "jiti":
             raise UserInputError(f"--gate chooses per task how JITI runs; mode {self.jiti.mode!r} has none to choose")
 
@@ -94,6 +105,10 @@ class RolloutConfig:
         None, "as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states"
     )
     policy_act: PolicyAct = setting(DEFAULT_POLICY_ACT, "how the BC policy acts (as in eval)")
+    replan_steps: int | None = _replan_steps_setting()
+    obs: ObsMode = setting(
+        "lowdim", "what the policy observes (as in eval, but not rgb: the file stores the state it needs)"
+    )
 
     def __post_init__(self) -> None:
         self.validate()
@@ -102,6 +117,8 @@ class RolloutConfig:
         """Refuse a setting that is out of range or contradicts another, with one line naming it."""
         if not int(self.episodes) >= 1:
             raise UserInputError(f"rollouts: episodes must be >= 1, got {self.episodes}")
+        if self.obs == "rgb":
+            raise UserInputError("rollouts: obs='rgb' has no state to record; use 'both' or 'vla'")
         if not 0.0 <= float(self.explore) <= 1.0:
             raise UserInputError(f"rollouts: --explore must lie in [0, 1], got {self.explore}")
         if self.explore_at is not None:
@@ -115,6 +132,8 @@ class RolloutConfig:
             raise UserInputError(f"rollouts: max_steps must be >= 1 (or None for the suite's), got {self.max_steps}")
         if self.policy_act not in POLICY_ACTS:
             raise unknown_choice("policy act", self.policy_act, POLICY_ACTS)
+        if self.replan_steps is not None and not int(self.replan_steps) >= 1:
+            raise UserInputError(f"replan_steps must be >= 1, got {self.replan_steps}")
 
     def jiti(self) -> JITIConfig:
         """The recording agent's settings: mode "random" while exploring, else "base"."""

@@ -36,9 +36,10 @@ from base_suites.env import LiberoEnv
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import RolloutConfig
-from elegant.evaluation.runner import check_init_states, episode_start, open_policy
+from elegant.evaluation.runner import check_init_states, episode_start
 from elegant.intervention.jiti import JITI
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
+from elegant.policies.specs import describe_policy, open_policy
 
 
 class _PolicySource:
@@ -92,7 +93,8 @@ class _PolicySource:
 
 def _policy_source(policy: Any, config: RolloutConfig, suite: str, policy_name: str) -> _PolicySource:
     """The rollouts' actor, built from picklable inputs (a worker process builds its own)."""
-    agent = JITI(open_policy(policy, config.policy_act), None, config.jiti(), seed=config.seed)
+    base = open_policy(policy, config.policy_act, replan_steps=config.replan_steps)
+    agent = JITI(base, None, config.jiti(), seed=config.seed)
     init_states = None if config.init_states is None else list(config.init_states)
     explore_at = None if config.explore_at is None else list(config.explore_at)
     return _PolicySource(agent, suite, config.seed, init_states, policy_name, explore_at)
@@ -160,7 +162,7 @@ def collect_rollouts(
         check_init_states(cfg.init_states, spec.n_init_states)  # before any env or file is made
     if cfg.explore_at is not None:
         _warn_unreached_points(cfg.explore_at, cfg.episodes, [_n_starts(spec, cfg.init_states) for spec in specs])
-    name = policy if isinstance(policy, str) else type(policy).__name__
+    name = describe_policy(policy)
     make_source = partial(_policy_source, policy, cfg, suite, name)
     source = make_source()  # here for the settings it records, and to refuse a bad policy before any env is built
     recorded = {
@@ -176,6 +178,8 @@ def collect_rollouts(
         recorded["perturbation"] = cfg.perturbation
     if cfg.policy_act != DEFAULT_POLICY_ACT:  # likewise
         recorded["policy_act"] = cfg.policy_act
+    if cfg.obs != "lowdim":  # likewise
+        recorded["obs"] = cfg.obs
     rollouts_of = Collection(
         suite,
         tasks,
@@ -184,6 +188,7 @@ def collect_rollouts(
         horizon=lambda spec: cfg.max_steps or spec.default_max_steps,
         settings=recorded,
         perturbation=cfg.perturbation,
+        obs=cfg.obs,
         desc="rollouts",
     )
     source_of = (lambda: source) if workers == 1 else make_source

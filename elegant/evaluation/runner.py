@@ -42,7 +42,7 @@ from elegant.evaluation.config import EvalConfig
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import summarize
 from elegant.intervention.jiti import JITI
-from elegant.policies.protocol import DEFAULT_POLICY_ACT
+from elegant.policies.specs import describe_policy, open_policy
 from elegant.reporting.report import write_run_report
 
 # the schema of RUN/config.json; records from before it had none and count as this one
@@ -88,24 +88,6 @@ def _describe(obj: Any) -> str | None:
     return f"{named.__module__}.{named.__qualname__}"
 
 
-def open_policy(policy: Any, act: str = DEFAULT_POLICY_ACT) -> Any:
-    """A policy directory loaded (`elegant.load_policy`, acting as `act` says: one of POLICY_ACTS), or a
-    callable passed through (it decides its own actions, so `act` must stay the default)."""
-    if isinstance(policy, (str, os.PathLike)):
-        from elegant.policies import load_policy
-
-        return load_policy(policy, act=act)
-    if act != DEFAULT_POLICY_ACT:
-        raise UserInputError(
-            f"policy act {act!r} applies to a BC policy directory; a {type(policy).__name__} decides its own actions"
-        )
-    if not callable(policy):
-        raise UserInputError(
-            f"policy: expected a policy directory or a callable obs -> action, got {type(policy).__name__}"
-        )
-    return policy
-
-
 def open_critic(critic: Any) -> Any:
     """A critic directory loaded (`critics.load`), comma-separated directories loaded as one ensemble
     (`critics.load_ensemble`), or a critic object (or None) passed through."""
@@ -120,7 +102,12 @@ def open_critic(critic: Any) -> Any:
 def build_agent(policy: Any, critic: Any, config: EvalConfig) -> JITI:
     """The evaluated agent: `policy` (acting as `config.policy_act` says) and `critic` opened (directories
     or objects) and wrapped in JITI with `config.jiti`, seeded by the run's seed."""
-    return JITI(open_policy(policy, config.policy_act), open_critic(critic), config.jiti, seed=config.seed)
+    return JITI(
+        open_policy(policy, config.policy_act, replan_steps=config.replan_steps),
+        open_critic(critic),
+        config.jiti,
+        seed=config.seed,
+    )
 
 
 def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
@@ -213,7 +200,7 @@ def evaluate(
     agent = build_agent(policy, critic, cfg)
     chosen = None if cfg.init_states is None else sorted({int(i) for i in cfg.init_states})
     described = {
-        "policy": _describe(policy),
+        "policy": describe_policy(policy),
         "policy_act": cfg.policy_act,
         "critic": _describe(critic),
         "jiti": {k: v for k, v in agent.config().items() if k != "mode"},
@@ -235,6 +222,7 @@ def evaluate(
         "max_steps": cfg.max_steps,
         "obs": cfg.obs,
         "init_states": chosen,
+        **({} if cfg.replan_steps is None else {"replan_steps": cfg.replan_steps}),
         **({} if task_modes is None else {"gate": {"file": os.path.abspath(cfg.gate), "modes": task_modes}}),
     }
     out = Path(out)

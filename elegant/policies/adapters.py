@@ -179,9 +179,11 @@ class LeRobotPolicy(PolicyAdapter):
     """A LeRobot-style policy: `select_action(batch)` on a batch of one, `reset()` at episode start.
 
     The batch holds `state_key` (float32, shape (1, D)), the instruction under "task" (a list with one
-    string, as LeRobot's env wrappers add it) and, when the observation has the upright "agentview"
-    image, `image_key` as (1, 3, H, W) float32 in [0, 1]. `state_fn` maps the env state to the vector the
-    policy was trained on (e.g. `lerobot_libero_state` for LeRobot's LIBERO policies).
+    string, as LeRobot's env wrappers add it) and the images as (1, 3, H, W) float32 in [0, 1]. With the
+    env's `obs="vla"` these are LeRobot's LIBERO keys: `image_key` the agentview image, `wrist_image_key`
+    the wrist image (both rotated as LeRobot's LIBERO env feeds them) and the 8-D `vla_state` as the state;
+    otherwise the upright "agentview" image, if any, under `image_key` and the env state through
+    `state_fn` (e.g. `lerobot_libero_state` for LeRobot's LIBERO policies).
     """
 
     name = "LeRobot policy"
@@ -192,6 +194,7 @@ class LeRobotPolicy(PolicyAdapter):
         *,
         state_key: str = "observation.state",
         image_key: str = "observation.images.image",
+        wrist_image_key: str = "observation.images.image2",
         state_fn: StateFn | None = None,
         device: str = "cpu",
         noise_scale: float = 0.1,
@@ -203,17 +206,23 @@ class LeRobotPolicy(PolicyAdapter):
         self._torch = torch
         self.policy = policy
         self.state_key, self.image_key, self.state_fn, self.device = state_key, image_key, state_fn, device
+        self.wrist_image_key = wrist_image_key
 
     def _act(self, obs: Observation) -> Any:
         torch = self._torch
-        state = self._state(obs, self.state_fn)
+        vla = "vla_state" in obs and self.state_fn is None
+        state = np.asarray(obs["vla_state"], dtype=np.float64) if vla else self._state(obs, self.state_fn)
         batch: dict[str, Any] = {
             self.state_key: torch.as_tensor(state, dtype=torch.float32, device=self.device).unsqueeze(0),
             "task": [self.instruction],
         }
-        if "agentview" in obs:
-            image = torch.as_tensor(np.ascontiguousarray(obs["agentview"]), device=self.device)
-            batch[self.image_key] = image.permute(2, 0, 1).unsqueeze(0).to(torch.float32) / 255.0
+        images = {"agentview": self.image_key}
+        if vla:
+            images = {"image": self.image_key, "wrist_image": self.wrist_image_key}
+        for name, key in images.items():
+            if name in obs:
+                image = torch.as_tensor(np.ascontiguousarray(obs[name]), device=self.device)
+                batch[key] = image.permute(2, 0, 1).unsqueeze(0).to(torch.float32) / 255.0
         with torch.inference_mode():
             action = self.policy.select_action(batch)
         return action.detach().cpu().numpy()
