@@ -95,7 +95,7 @@ def main() -> dict:
         "network_added_ms": {k: round(v, 3) for k, v in added.items()},
         "target_network_added_ms": 5.0,
         "candidates_per_decision": args.candidates,
-        "candidate_source": policies["served"].candidates,
+        "candidate_source": policies["served"].candidate_source,
     }
     print(json.dumps(result))
     return result

@@ -15,6 +15,7 @@ from torch import nn
 
 from base_suites.runtime.errors import UserInputError
 from elegant.policies import (
+    ACTION_DIM,
     TORCHRL_LIBERO_STATE,
     CallablePolicy,
     GaussianCandidates,
@@ -273,3 +274,35 @@ def test_torchrl_probabilistic_module_samples_its_distribution_reproducibly():
     policy.reset(seed=11)
     policy(obs)
     np.testing.assert_array_equal(policy.sample(obs, 32), cands)
+
+
+class SeededDraws:
+    """A stochastic callable that takes seeds: candidates are its own repeated draws."""
+
+    stochastic = True
+
+    def __init__(self):
+        self.rng = np.random.default_rng(0)
+        self.seeds = []
+
+    def __call__(self, obs):
+        return self.rng.uniform(-1, 1, ACTION_DIM)
+
+    def reset(self, metadata=None, *, seed=None):
+        self.seeds.append(seed)
+        self.rng = np.random.default_rng(seed)
+
+
+def test_a_stochastic_callable_gives_its_own_draws_as_candidates_and_receives_the_episode_seed():
+    inner = SeededDraws()
+    policy = as_policy(inner)
+    assert policy.candidate_source == "repeated calls"
+    policy.reset(METADATA, seed=5)
+    obs = obs_of(1)
+    action = policy(obs)
+    candidates = policy.sample(obs, 4)
+    np.testing.assert_array_equal(candidates[0], action)
+    assert len({tuple(c) for c in candidates}) == 4 and inner.seeds == [5]
+    policy.reset(METADATA, seed=5)
+    np.testing.assert_array_equal(policy(obs), action)  # the seed reached the policy: the draws repeat
+    assert as_policy(lambda o: np.zeros(ACTION_DIM)).candidate_source == "Gaussian noise"

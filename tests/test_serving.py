@@ -71,7 +71,7 @@ def episode_observations(obs_mode="lowdim", steps=6):
 def test_a_served_policy_plans_and_samples_as_the_same_policy_in_process(policy_dir, served):
     observations, metadata = episode_observations()
     remote, local = OpenPIPolicy(served), load_policy(policy_dir)
-    assert remote.chunk == local.chunk and remote.candidates == "server samples"
+    assert remote.chunk == local.chunk and remote.candidate_source == "server samples"
     for policy in (remote, local):
         policy.reset(metadata, seed=7)
     for obs in observations:
@@ -154,7 +154,7 @@ def test_a_plain_openpi_server_gets_vla_observations_and_its_chunks_are_replanne
     server, address = plain_openpi_server(reply)
     observations, metadata = episode_observations("vla", steps=7)
     policy = open_policy(address.replace("ws://", "openpi://"))
-    assert policy.chunk == 5 and policy.candidates == "repeated calls"
+    assert policy.chunk == 5 and policy.candidate_source == "repeated calls"
     policy.reset(metadata, seed=0)
     actions = [policy(obs) for obs in observations]
     assert len(requests) == 2  # a decision every 5 steps
@@ -268,3 +268,29 @@ def test_clients_are_served_side_by_side_and_an_oversized_message_closes_only_it
             ws.recv()
     clients[0].reset(metadata, seed=0)
     assert clients[0].plan(observations[0]).shape == (1, 7)  # the server and its other clients carried on
+
+
+def test_a_lerobot_style_entry_point_sees_both_cameras_under_eval_from_the_cli(tmp_path, capsys):
+    import policy_entry_points
+
+    from elegant.cli import main
+
+    code = main(
+        ["eval", "--suite", "libero_object", "--tasks", "0", "--policy", "policy_entry_points:make_lerobot_style",
+         "--mode", "base", "--episodes", "1", "--max-steps", "3", "--obs", "vla", "--out", str(tmp_path / "run")]
+    )  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    seen = policy_entry_points.LAST_LEROBOT[-1].batches[0]
+    assert seen["observation.images.image"] == seen["observation.images.image2"] == (1, 3, 256, 256)
+    assert seen["observation.state"] == (1, 8) and seen["task"] == ["pick the alphabet soup and place it in the basket"]
+
+
+def test_a_served_policys_own_rollouts_are_recorded_with_vla_observations_and_annotated(served, tmp_path):
+    from annotations import annotate_file
+    from elegant.evaluation.rollouts import collect_rollouts
+
+    out = str(tmp_path / "own.hdf5")
+    summary = collect_rollouts("libero_object", [0], served, out, episodes=1, max_steps=4, obs="vla", progress=False)
+    assert summary["episodes"] == 1
+    labelled = annotate_file(out, str(tmp_path / "own_annotated.hdf5"), progress=False)
+    assert labelled["demos"] == 1

@@ -21,6 +21,7 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
         "format": "libero-elegant-run/1",
         "init_states": None,
         "policy_act": "mode",
+        "candidate_source": SAME_AS_NOW,
         "jiti": {
             "chunk": 1,
             "random_rate": SAME_AS_NOW,

@@ -204,6 +204,7 @@ def evaluate(
         "policy_act": cfg.policy_act,
         "critic": _describe(critic),
         "jiti": {k: v for k, v in agent.config().items() if k != "mode"},
+        "candidate_source": getattr(agent.policy, "candidate_source", "the policy's samples"),
     }
     task_modes = None
     if cfg.gate is not None:

@@ -81,6 +81,7 @@ class PolicyAdapter:
     """
 
     name = "policy"
+    candidate_source = "Gaussian noise"  # where JITI's candidates come from (a run's config records it)
 
     def __init__(self, *, noise_scale: float = 0.1, seed: int = 0) -> None:
         self.noise = GaussianCandidates(noise_scale, seed)
@@ -149,9 +150,15 @@ class CallablePolicy(PolicyAdapter):
         self.fn = fn
         sampler = getattr(fn, "sample", None)
         self._own_sample = sampler if callable(sampler) else None
+        self.stochastic = bool(getattr(fn, "stochastic", False))
+        if self._own_sample is not None:
+            self.candidate_source = "the policy's samples"
+        elif self.stochastic:
+            self.candidate_source = "repeated calls"
         reset = getattr(fn, "reset", None)
         self._own_reset = reset if callable(reset) else None
         self._reset_takes_metadata = self._own_reset is not None and _accepts_argument(self._own_reset)
+        self._reset_takes_seed = self._own_reset is not None and _accepts_keyword(self._own_reset, "seed")
 
     def _act(self, obs: Observation) -> Any:
         return self.fn(obs)
@@ -162,9 +169,29 @@ class CallablePolicy(PolicyAdapter):
         n = check_count(n)
         return _check_candidates(self._own_sample(obs, n), n, type(self.fn).__name__)
 
+    def _candidates(self, obs: Observation, action: np.ndarray, n: int) -> np.ndarray:
+        """A stochastic callable (`fn.stochastic` true) is asked n - 1 more times; candidate 0 is its action."""
+        if not self.stochastic:
+            return super()._candidates(obs, action, n)
+        return np.stack([action] + [as_action(self.fn(obs), self.name) for _ in range(n - 1)])
+
+    def reset(self, metadata: Mapping[str, Any] | None = None, *, seed: int | None = None) -> None:
+        self._seed = seed
+        super().reset(metadata, seed=seed)
+
     def _reset(self, metadata: Mapping[str, Any] | None) -> None:
-        if self._own_reset is not None:
-            self._own_reset(metadata) if self._reset_takes_metadata else self._own_reset()
+        if self._own_reset is None:
+            return
+        seeded = {"seed": self._seed} if self._reset_takes_seed else {}  # seeds reach a policy that takes them
+        self._own_reset(metadata, **seeded) if self._reset_takes_metadata else self._own_reset(**seeded)
+
+
+def _accepts_keyword(fn: Callable[..., Any], name: str) -> bool:
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+    return name in params or any(p.kind is p.VAR_KEYWORD for p in params.values())
 
 
 def _accepts_argument(fn: Callable[..., Any]) -> bool:
@@ -271,6 +298,7 @@ class TorchRLPolicy(PolicyAdapter):
         self.module = module
         self.state_key, self.action_key, self.state_fn = state_key, action_key, state_fn
         self.stochastic = isinstance(module, (ProbabilisticTensorDictModule, ProbabilisticTensorDictSequential))
+        self.candidate_source = "the policy's samples" if self.stochastic else "Gaussian noise"
         self._reads_instruction = instruction_key in _flat_keys(getattr(module, "in_keys", ()))
         self.instruction_key = instruction_key
 

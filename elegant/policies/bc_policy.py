@@ -41,12 +41,14 @@ _ACT_STREAM = 0x5A17  # offsets the execution generator's seed from the candidat
 
 class BCPolicy:
     """A `ChunkedPolicy` over the env's low-dimensional state (see module docstring); with `chunk` 1 it
-    decides every step.
+    decides every step. Its candidates are draws from its own mixture.
 
     Call `reset(env.metadata)` at the start of each episode: it clears the history and the action queue,
     selects the task and refuses an env whose observation layout differs from the training data. A
     single-task policy also works without metadata, checking only the state width.
     """
+
+    candidate_source = "the policy's samples"
 
     def __init__(
         self,

@@ -70,15 +70,11 @@ class OpenPIPolicy:
         self.chunk = int(replan_steps or served or OPENPI_REPLAN_STEPS)
         if served is not None and self.chunk > int(served):
             raise UserInputError(f"policy {address}: --replan-steps {self.chunk} exceeds the served chunk of {served}")
-        self.candidates = "server samples" if self.extension.get("samples") else "repeated calls"
+        self.candidate_source = "server samples" if self.extension.get("samples") else "repeated calls"
         self._pool = ThreadPoolExecutor(max_workers=1)
         self._queue: deque[np.ndarray] = deque()
         self._metadata: Mapping[str, Any] = {}
         self._pending_reset: dict[str, Any] | None = None
-
-    def describe(self) -> dict[str, Any]:
-        """What a run's config records of this policy."""
-        return {"address": self.address, "replan_steps": self.chunk, "candidates": self.candidates}
 
     def reset(self, metadata: Mapping[str, Any] | None = None, *, seed: int | None = None) -> None:
         self._metadata = dict(metadata or {})
