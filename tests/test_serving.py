@@ -294,3 +294,16 @@ def test_a_served_policys_own_rollouts_are_recorded_with_vla_observations_and_an
     assert summary["episodes"] == 1
     labelled = annotate_file(out, str(tmp_path / "own_annotated.hdf5"), progress=False)
     assert labelled["demos"] == 1
+
+
+def test_a_served_policy_runs_under_elegant_eval_from_the_cli_and_resumes(served, tmp_path, capsys):
+    from elegant.cli import main
+
+    args = ["eval", "--suite", "libero_object", "--tasks", "0", "--policy", served, "--mode", "base",
+            "--max-steps", "3", "--obs", "vla", "--out", str(tmp_path / "run")]  # fmt: skip
+    assert main([*args, "--episodes", "1"]) == 0, capsys.readouterr().err
+    assert main([*args, "--episodes", "2", "--resume"]) == 0, capsys.readouterr().err
+    records = (tmp_path / "run" / "episodes.jsonl").read_text().splitlines()
+    assert (
+        len(records) == 2 and '"candidate_source": "server samples"' in (tmp_path / "run" / "config.json").read_text()
+    )
