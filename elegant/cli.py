@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
@@ -539,6 +540,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from base_suites.runtime.errors import UserInputError
 
     args = build_parser().parse_args(argv)
+    warnings.formatwarning = lambda message, *_, **__: f"elegant {args.command}: warning: {message}\n"
     try:
         result = args.run(args)
     except UserInputError as exc:

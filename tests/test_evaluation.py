@@ -324,3 +324,14 @@ def test_a_run_refused_at_its_first_episode_leaves_nothing_and_the_fix_runs_ther
     assert not out.exists()
     summary = evaluate(SUITE, [TASK], PlungePolicy(), ReachCritic(), out=out, progress=False, episodes=1, max_steps=3)
     assert summary["episodes"] == 1
+
+
+def test_more_episodes_than_starts_warns_and_the_summary_counts_starts(tmp_path):
+    from elegant.evaluation.runner import RepeatedStartsWarning
+
+    with pytest.warns(RepeatedStartsWarning, match="3 episodes per task from 2 starts"):
+        summary = evaluate(
+            SUITE, [TASK], PlungePolicy(), out=tmp_path / "run", progress=False, mode="base", episodes=3,
+            init_states=[4, 5], max_steps=2,
+        )  # fmt: skip
+    assert summary["starts"] == 2 and summary["episodes_per_start"] == 1.5

@@ -6,6 +6,7 @@ import pytest
 from base_suites import UserInputError
 from elegant.evaluation.metrics import (
     clamp_learning_curves,
+    clustered_rate,
     decision_overhead,
     elegant_success_rate,
     interventions_per_episode,
@@ -197,3 +198,34 @@ def test_lifelong_metrics_clamp_at_the_kept_checkpoints_not_at_their_own_best():
     assert m["auc_per_task"] == pytest.approx([(0.25 + 0.2) / 2, 0.5]) and m["auc"] == pytest.approx(0.3625)
     own = lifelong_metrics(S_, C_)  # at their own maxima: [0, 0.6, 0.2, 0.7] and [0.5, 0.1, 0.9, 0.9]
     assert own["fwt"] == pytest.approx((1.5 / 4 + 2.4 / 4) / 2) and own["fwt"] != pytest.approx(m["fwt"])
+
+
+def test_intervals_count_starts_not_episodes():
+    distinct = [start(e, e < 16, False) for e in range(25)]
+    assert clustered_rate(distinct, "success")["interval"] == pytest.approx(rate_interval(16, 25))  # Wilson
+    repeated = distinct + [dict(r, episode=r["episode"] + 25) for r in distinct]  # each start twice, the same
+    twice = clustered_rate(repeated, "success")
+    assert twice["rate"] == pytest.approx(16 / 25) and (twice["starts"], twice["episodes_per_start"]) == (25, 2.0)
+    assert twice["interval"] == pytest.approx(rate_interval(16, 25))  # identical repeats do not narrow it
+    full = [
+        dict(r, violated=[], interventions=0, overrides=0, steps=1, decision_time=0, env_step_time=1) for r in repeated
+    ]
+    assert summarize(full)["success_ci95"] == pytest.approx(rate_interval(16, 25)) and summarize(full)["starts"] == 25
+    split = [start(e % 20, e < 20, False) for e in range(40)]  # every start once each way: no start effect
+    assert clustered_rate(split, "success")["icc"] == 0.0
+    assert clustered_rate(split, "success")["interval"] == pytest.approx(rate_interval(20, 40))
+    always = [start(e % 5, True, True) for e in range(20)]  # nothing varies anywhere: count the 5 starts
+    assert clustered_rate(always, "elegant")["interval"] == pytest.approx(rate_interval(5, 5))
+
+
+def test_the_paired_test_takes_the_start_as_its_unit():
+    before = [start(e % 10, False, False) for e in range(20)]  # 10 starts, each run twice
+    after = [dict(r, elegant=r["init_index"] - 25 < 6) for r in before]
+    elegant = paired_comparison(before, after, "elegant")
+    assert (elegant["only_after"], elegant["starts"], elegant["starts_better"], elegant["starts_worse"]) == (
+        12,
+        10,
+        6,
+        0,
+    )
+    assert elegant["p_value"] == pytest.approx(2 * 0.5**6)  # six starts, not twelve episodes

@@ -148,8 +148,8 @@ def test_compare_runs_pairs_later_runs_with_the_first_on_shared_starts(tmp_path)
     ] == 0.5
     assert paired["elegant"]["difference"] == 0.25  # episode 2 (even index) turns elegant
     assert (
-        "| jiti (jiti) | 4 | +50.0 points (2 gained, 0 lost; p = 0.5) | +25.0 points (1 gained, 0 lost; p = 1) |"
-        in result["markdown"]
+        "| jiti (jiti) | 4 | +50.0 points (2 gained, 0 lost; 2 of 4 starts better, 0 worse, p = 0.5) "
+        "| +25.0 points (1 gained, 0 lost; 1 of 4 starts better, 0 worse, p = 1) |" in result["markdown"]
     )
 
 

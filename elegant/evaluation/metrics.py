@@ -13,7 +13,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy.stats import binomtest
+from scipy.stats import binomtest, norm
 
 from annotations.format import CRITERIA
 from base_suites.runtime.errors import UserInputError
@@ -51,44 +51,109 @@ def success_with_violation(records: Sequence[Record], criteria: Iterable[str] = 
     return {c: float(np.mean([bool(r["success"]) and c in r["violated"] for r in records])) for c in criteria}
 
 
+def start_keys(records: Sequence[Record]) -> list[tuple]:
+    """The start each episode ran from: its task and init state. Episodes of one start are not independent
+    (a deterministic policy repeats itself from the same start), so the start is the statistical unit.
+    A record without an init state counts as a start of its own."""
+    return [
+        (r["task"], int(r["init_index"])) if r.get("init_index") is not None else ("record", i)
+        for i, r in enumerate(records)
+    ]
+
+
+def wilson_interval(rate: float, n: float, confidence: float = 0.95) -> list[float]:
+    """Wilson score interval of a rate observed over `n` (possibly effective, non-integer) trials."""
+    if not n > 0:
+        raise UserInputError("no episodes to compute an interval from")
+    z = float(norm.ppf(0.5 + confidence / 2))
+    scale = 1.0 + z * z / n
+    center = (rate + z * z / (2 * n)) / scale
+    half = z * np.sqrt(rate * (1.0 - rate) / n + z * z / (4 * n * n)) / scale
+    return [float(max(0.0, center - half)), float(min(1.0, center + half))]
+
+
 def rate_interval(hits: int, n: int, confidence: float = 0.95) -> list[float]:
-    """Wilson score interval of a rate of `hits` in `n` episodes: at the 25-50 episodes a task gets here,
-    a success rate or ESR is uncertain by +-10-20 points, and the interval says so."""
+    """Wilson score interval of `hits` in `n` independent episodes (each from its own start)."""
     if n < 1:
         raise UserInputError("no episodes to compute an interval from")
-    interval = binomtest(int(hits), int(n)).proportion_ci(confidence_level=confidence, method="wilson")
-    return [float(interval.low), float(interval.high)]
+    return wilson_interval(hits / n, n, confidence)
+
+
+def clustered_rate(records: Sequence[Record], key: str, confidence: float = 0.95) -> dict[str, Any]:
+    """The rate of the boolean field `key` with an interval that counts starts, not episodes.
+
+    The point estimate is the plain rate over episodes. The interval is Wilson's over the effective number
+    of episodes N / (1 + (m - 1) * icc) (Kish's design effect; m the mean episodes per start, icc the
+    intra-start correlation by the ANOVA estimator, clipped to [0, 1], taken as 1 where no start varies):
+    one episode per start gives Wilson over the starts, and identical repeats of a start count once.
+    Returns rate, interval (at `confidence`), starts, episodes_per_start, icc and effective_episodes."""
+    _require(records)
+    groups: dict[tuple, list[bool]] = {}
+    for start, r in zip(start_keys(records), records):
+        groups.setdefault(start, []).append(bool(r[key]))
+    sizes = np.array([len(g) for g in groups.values()], dtype=np.float64)
+    means = np.array([np.mean(g) for g in groups.values()])
+    n, k = float(sizes.sum()), len(groups)
+    rate = float(np.dot(sizes, means) / n)
+    icc = _intra_start_correlation(sizes, means, rate) if n > k else 0.0
+    effective = n / (1.0 + (n / k - 1.0) * icc)
+    return {
+        "rate": rate,
+        "interval": wilson_interval(rate, effective, confidence),
+        "starts": k,
+        "episodes_per_start": n / k,
+        "icc": icc,
+        "effective_episodes": effective,
+    }
+
+
+def _intra_start_correlation(sizes: np.ndarray, means: np.ndarray, rate: float) -> float:
+    """ANOVA estimator of the intra-cluster correlation of a binary outcome, clipped to [0, 1]."""
+    n, k = float(sizes.sum()), len(sizes)
+    within = float(np.dot(sizes, means * (1.0 - means)) / (n - k))
+    if within == 0.0:
+        return 1.0  # no start varies: its repeats carry no new information
+    between = float(np.dot(sizes, (means - rate) ** 2) / (k - 1)) if k > 1 else 0.0
+    n0 = (n - float(np.dot(sizes, sizes)) / n) / (k - 1) if k > 1 else n
+    return float(np.clip((between - within) / (between + (n0 - 1.0) * within), 0.0, 1.0))
 
 
 def paired_comparison(before: Sequence[Record], after: Sequence[Record], key: str) -> dict[str, Any]:
     """Two runs on the same starts (same seed, so the same init state and reset seed per episode), compared
-    on the boolean record field `key` ("success" or "elegant") episode by episode.
+    on the boolean record field `key` ("success" or "elegant").
 
     Pairs are the episodes with the same task and episode index whose init_index and seed agree. Returns
     pairs, the rates before and after over the pairs, difference (after - before), only_before /
-    only_after (pairs where only that run has `key`) and p_value: McNemar's exact test, the two-sided
-    binomial test of only_after against only_before (1.0 where they are all equal). Pairing removes the
-    start-to-start variance that dominates the difference of two independent 25-episode rates."""
+    only_after (pairs where only that run has `key`), and the test with the start as the unit: starts,
+    starts_better / starts_worse (starts whose mean over their pairs rose / fell) and p_value, the exact
+    two-sided sign test of starts_better against starts_worse (1.0 where none differs). With one episode
+    per start it is McNemar's exact test; repeated episodes of a start do not count as more evidence."""
 
-    def start(r: Record) -> tuple:
+    def episode(r: Record) -> tuple:
         return r["task"], int(r["episode"]), r.get("init_index"), r.get("seed")
 
-    earlier = {start(r): r for r in before}
-    pairs = [(earlier[start(r)], r) for r in after if start(r) in earlier]
+    earlier = {episode(r): r for r in before}
+    pairs = [(earlier[episode(r)], r) for r in after if episode(r) in earlier]
     if not pairs:
         return {"pairs": 0}
     a = np.array([bool(p[key]) for p, _ in pairs])
     b = np.array([bool(q[key]) for _, q in pairs])
-    only_before, only_after = int(np.sum(a & ~b)), int(np.sum(b & ~a))
-    discordant = only_before + only_after
+    by_start: dict[tuple, list[int]] = {}
+    for start, x, y in zip(start_keys([later for _, later in pairs]), a, b):
+        by_start.setdefault(start, []).append(int(y) - int(x))
+    changes = np.array([np.mean(d) for d in by_start.values()])
+    better, worse = int(np.sum(changes > 0)), int(np.sum(changes < 0))
     return {
         "pairs": len(pairs),
         "before": float(a.mean()),
         "after": float(b.mean()),
         "difference": float(b.mean() - a.mean()),
-        "only_before": only_before,
-        "only_after": only_after,
-        "p_value": float(binomtest(only_after, discordant).pvalue) if discordant else 1.0,
+        "only_before": int(np.sum(a & ~b)),
+        "only_after": int(np.sum(b & ~a)),
+        "starts": len(by_start),
+        "starts_better": better,
+        "starts_worse": worse,
+        "p_value": float(binomtest(better, better + worse).pvalue) if better + worse else 1.0,
     }
 
 
@@ -113,12 +178,15 @@ def decision_overhead(records: Sequence[Record]) -> dict[str, float]:
 
 
 def _block(records: Sequence[Record]) -> dict[str, Any]:
+    success, elegant = clustered_rate(records, "success"), clustered_rate(records, "elegant")
     return {
         "episodes": len(records),
-        "success_rate": success_rate(records),
-        "success_ci95": rate_interval(sum(bool(r["success"]) for r in records), len(records)),
-        "esr": elegant_success_rate(records),
-        "esr_ci95": rate_interval(sum(bool(r["elegant"]) for r in records), len(records)),
+        "starts": success["starts"],
+        "episodes_per_start": success["episodes_per_start"],
+        "success_rate": success["rate"],
+        "success_ci95": success["interval"],
+        "esr": elegant["rate"],
+        "esr_ci95": elegant["interval"],
         "itc_violation_rate": violation_rates(records),
         "success_with_violation": success_with_violation(records),
         "interventions_per_episode": interventions_per_episode(records),

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import warnings
 import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -127,6 +128,10 @@ def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
     atomic_write(path, json.dumps(config, indent=2))
 
 
+class RepeatedStartsWarning(UserWarning):
+    """An evaluation asks for more episodes per task than it has starts (the summary counts the starts)."""
+
+
 def _remove_refused_run(out: Path) -> None:
     """Remove what a run refused before any episode finished wrote, so that the corrected command can
     use the same directory."""
@@ -193,6 +198,14 @@ def evaluate(
     specs = task_specs(suite, tasks)
     for spec in specs:
         check_init_states(cfg.init_states, spec.n_init_states)
+    starts = min(len(cfg.init_states) if cfg.init_states is not None else spec.n_init_states for spec in specs)
+    if cfg.episodes > starts:
+        warnings.warn(
+            f"{cfg.episodes} episodes per task from {starts} starts: starts repeat, and the intervals and tests "
+            "count starts, not episodes",
+            RepeatedStartsWarning,
+            stacklevel=2,
+        )
     indices = list(dict.fromkeys(spec.index for spec in specs))
     workers = check_workers(workers)
     if workers > 1:

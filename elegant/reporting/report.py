@@ -113,6 +113,7 @@ def _with_interval(rate: float, interval: Sequence[float]) -> str:
 def _summary_rows(s: Mapping[str, Any]) -> list[list[str]]:
     rows = [
         ["episodes", str(s["episodes"])],
+        ["distinct starts (episodes per start)", f"{s['starts']} ({s['episodes_per_start']:.3g})"],
         ["success rate [95% interval]", _with_interval(s["success_rate"], s["success_ci95"])],
         ["ESR (elegant success rate) [95% interval]", _with_interval(s["esr"], s["esr_ci95"])],
     ]
@@ -177,7 +178,8 @@ def write_run_report(
         "",
         "Violation rate: fraction of episodes with at least one violated 25-step window of the criterion; "
         "'succeeded, but violated': the fraction that reached the goal with such a window, which is where "
-        "the gap between success and ESR comes from. Intervals: Wilson score, 95%. "
+        "the gap between success and ESR comes from. Intervals: Wilson score, 95%, with the start as the unit "
+        "(repeated episodes of a start count by how much they differ; identical ones count once). "
         "Decision overhead: JITI's time per step over the env's step time.",
         "",
         "## Per task",
@@ -234,8 +236,8 @@ def _paired_rows(labels: Sequence[str], runs: Sequence[Sequence[Mapping[str, Any
 
 def _paired_cell(p: Mapping[str, Any]) -> str:
     return (
-        f"{100 * p['difference']:+.1f} points ({p['only_after']} gained, {p['only_before']} lost; p = "
-        f"{p['p_value']:.3g})"
+        f"{100 * p['difference']:+.1f} points ({p['only_after']} gained, {p['only_before']} lost; "
+        f"{p['starts_better']} of {p['starts']} starts better, {p['starts_worse']} worse, p = {p['p_value']:.3g})"
         if p["pairs"]
         else "no shared starts"
     )
@@ -317,8 +319,9 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
             "",
             f"## Paired with {labels[0]}",
             "",
-            "Episodes of two runs with the same seed start alike; each cell counts the starts where only one "
-            "of the two runs succeeded (or succeeded elegantly), with McNemar's exact p-value.",
+            "Episodes of two runs with the same seed start alike; each cell counts the episodes where only one "
+            "of the two runs succeeded (or succeeded elegantly), and the starts whose episodes did better or "
+            "worse, with the exact sign test over starts (McNemar's test when every start runs once).",
             "",
             markdown_table(
                 ["run", "episode pairs", "success", "ESR"],
