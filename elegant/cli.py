@@ -493,6 +493,7 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--suite", help="run the recipe on this suite instead")
     p.add_argument("--task", type=int, help="run the recipe on this task index instead")
     p.add_argument("--seed", type=int, help="every stage's seed (default: the recipe's)")
+    p.add_argument("--json", action="store_true", help="print the result as JSON instead of a summary")
     _workers_arg(p, default=available_cores())
 
 
@@ -501,10 +502,10 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     "JITI's recipe on one task at small sizes: demos -> annotate -> policy -> branch rollouts -> critic -> "
     "eval base and JITI -> report",
 )(_quickstart_args)
-def _quickstart(args: argparse.Namespace) -> dict:
+def _quickstart(args: argparse.Namespace) -> dict | None:
     from base_suites.runtime.settings import with_overrides
     from elegant.chain_config import load_recipe
-    from elegant.pipeline import quickstart
+    from elegant.pipeline import effects_text, quickstart
 
     changes = {
         "suites": args.suite and (args.suite,),
@@ -513,6 +514,9 @@ def _quickstart(args: argparse.Namespace) -> dict:
     }
     recipe = with_overrides(load_recipe(args.recipe), {k: v for k, v in changes.items() if v is not None})
     result = quickstart(args.out, recipe, workers=args.workers)
+    if not args.json:
+        print(effects_text(result))
+        return None
     # one suite and one task: the per-suite and per-task rows repeat the pooled numbers
     return {k: v for k, v in result.items() if k not in ("per_suite", "per_task")}
 

@@ -180,7 +180,57 @@ def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int
     result["per_task"] = {s: {m: summaries[m][s]["per_task"] for m in cfg.modes} for s in cfg.suites}
     result["report"] = os.path.join(report_dir, "comparison.md")
     result["runs"] = runs
+    result["effects"] = {suite: chain_effects({m: runs[m][suite] for m in cfg.modes}) for suite in cfg.suites}
     return result
+
+
+def chain_effects(runs: dict[str, str]) -> dict[str, dict[str, Any]]:
+    """Per mode of one suite's runs ({mode: run directory}): success and ESR with their intervals, starts,
+    interventions per episode and their share of `always`'s, and against `base` the episodes made elegant /
+    spoiled with the sign test over starts (`elegant.evaluation.metrics`)."""
+    from elegant.evaluation.metrics import paired_comparison
+    from elegant.reporting.report import load_run
+
+    loaded = {mode: load_run(path) for mode, path in runs.items()}
+    always = loaded["always"][0]["interventions_per_episode"] if "always" in loaded else None
+    effects = {}
+    for mode, (summary, records) in loaded.items():
+        row: dict[str, Any] = {
+            k: summary[k] for k in ("success_rate", "success_ci95", "esr", "esr_ci95", "starts", "episodes_per_start")
+        }
+        row["interventions_per_episode"] = summary["interventions_per_episode"]
+        if always and mode not in ("always", "base"):
+            row["share_of_always"] = summary["interventions_per_episode"] / always
+        if "base" in loaded and mode != "base":
+            paired = paired_comparison(loaded["base"][1], records, "elegant")
+            row.update(made_elegant=paired["only_after"], spoiled=paired["only_before"], p_value=paired["p_value"])
+        effects[mode] = row
+    return effects
+
+
+def effects_text(result: dict[str, Any]) -> str:
+    """The human summary a chain ends with: per suite and mode, success and ESR with 95% intervals, what
+    each mode did to elegance against the base policy, interventions, and where the report lies."""
+
+    def rate(value: float, interval: list[float]) -> str:
+        return f"{100 * value:.0f}% [{100 * interval[0]:.0f}-{100 * interval[1]:.0f}]"
+
+    lines = []
+    for suite, modes in result["effects"].items():
+        first = next(iter(modes.values()))
+        lines.append(f"{suite}: {first['starts']} starts, {first['episodes_per_start']:.3g} episode(s) each")
+        for mode, row in modes.items():
+            text = f"  {mode:7s} success {rate(row['success_rate'], row['success_ci95'])}, "
+            text += f"ESR {rate(row['esr'], row['esr_ci95'])}"
+            if "made_elegant" in row:
+                text += f"; {row['made_elegant']} made elegant, {row['spoiled']} spoiled (p = {row['p_value']:.2g})"
+            if mode != "base":
+                text += f"; {row['interventions_per_episode']:.2f} interventions per episode"
+            if "share_of_always" in row:
+                text += f" ({100 * row['share_of_always']:.0f}% of always's)"
+            lines.append(text)
+    lines.append(f"report: {result['report']}")
+    return "\n".join(lines)
 
 
 def quickstart(

@@ -78,6 +78,22 @@ def test_chain_runs_every_step_and_reports_the_eval_numbers(chain):
     assert chain_json["format"] == "libero-elegant-chain/2" and chain_json["settings"]["critic"]["steps"] == 20
 
 
+def test_the_chain_ends_with_a_summary_that_agrees_with_its_report(chain):
+    from elegant.pipeline import effects_text
+    from elegant.reporting.report import compare_runs
+
+    out, result = chain
+    runs = result["runs"]
+    effects = result["effects"]["libero_object"]
+    paired = compare_runs([runs["base"]["libero_object"], runs["jiti"]["libero_object"]])["paired"][0]["elegant"]
+    jiti = effects["jiti"]
+    assert (jiti["made_elegant"], jiti["spoiled"]) == (paired["only_after"], paired["only_before"])
+    assert effects["jiti"]["p_value"] == paired["p_value"] and effects["base"]["esr"] == result["base"]["esr"]
+    text = effects_text(result)
+    assert f"{effects['jiti']['made_elegant']} made elegant, {effects['jiti']['spoiled']} spoiled" in text
+    assert text.endswith(f"report: {result['report']}") and "starts" in text.splitlines()[0]
+
+
 def test_chain_resumes_without_redoing_and_refuses_other_settings(chain):
     out, result = chain
     critic = os.path.join(out, "critic", "critic.json")
@@ -249,7 +265,9 @@ def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(mon
 
     calls = []
     monkeypatch.setattr(
-        pipeline, "run_chain", lambda out, config, progress, workers: calls.append((out, config, workers)) or {}
+        pipeline,
+        "run_chain",
+        lambda out, config, progress, workers: calls.append((out, config, workers)) or {"effects": {}, "report": "r"},
     )
     assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--task", "3", "--seed", "2"]) == 0
     assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--workers", "1"]) == 0

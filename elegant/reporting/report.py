@@ -210,9 +210,10 @@ def write_run_report(
 # ---- several runs ----------------------------------------------------------------------------------
 
 
-def _load_run(run_dir: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+def load_run(run_dir: str | os.PathLike) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """A finished run's summary and episode records. The metrics are recomputed from the records, so runs
     written before a metric existed compare with it too."""
+    run_dir = Path(run_dir)
     path = run_dir / "summary.json"
     if not path.exists():
         raise UserInputError(f"{run_dir}: no summary.json; expected the directory of a finished `elegant eval` run")
@@ -291,7 +292,7 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
     if not run_dirs:
         raise UserInputError("report: expected at least one run directory")
     dirs = [Path(d) for d in run_dirs]
-    summaries, records = zip(*(_load_run(d) for d in dirs))
+    summaries, records = zip(*(load_run(d) for d in dirs))
     names = [d.name or str(d) for d in dirs]
     if len(set(names)) < len(names):
         names = [str(d) for d in dirs]
