@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import math
 import sys
 import warnings
@@ -545,6 +546,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     warnings.formatwarning = lambda message, *_, **__: f"elegant {args.command}: warning: {message}\n"
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # its info lines would break the progress bars
     try:
         result = args.run(args)
     except UserInputError as exc:
