@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import math
+import os
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -546,7 +546,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     args = build_parser().parse_args(argv)
     warnings.formatwarning = lambda message, *_, **__: f"elegant {args.command}: warning: {message}\n"
-    logging.getLogger("torchrl").setLevel(logging.WARNING)  # its info lines would break the progress bars
+    os.environ.setdefault("RL_LOGGING_LEVEL", "WARNING")  # torchrl's info lines would break the progress bars
     try:
         result = args.run(args)
     except UserInputError as exc:
