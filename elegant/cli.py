@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import warnings
 from collections.abc import Callable, Sequence
@@ -38,8 +39,17 @@ def command(name: str, help_text: str):
 
 
 def _print_json(result: object) -> None:
-    """Print a command's result as strict JSON: NaN or infinity (an undefined rate) become null."""
-    print(json.dumps(_strict(result), indent=2, default=str, allow_nan=False))
+    """Print a command's result as strict JSON (NaN or infinity, an undefined rate, become null), a list of
+    numbers on one line."""
+    text = json.dumps(_strict(result), indent=2, default=str, allow_nan=False)
+    print(re.sub(rf"\[\s*((?:{_SCALAR},\s*)*{_SCALAR})\s*\]", _one_line_list, text))
+
+
+_SCALAR = r"(?:-?[\d.]+(?:[eE][-+]?\d+)?|null|true|false)"  # a number or literal: no string can hold a comma
+
+
+def _one_line_list(match: re.Match) -> str:
+    return "[" + ", ".join(item.strip() for item in match.group(1).split(",")) + "]"
 
 
 def _strict(value: object) -> object:

@@ -113,6 +113,8 @@ def test_a_run_on_two_workers_gives_the_serial_runs_episodes_traces_and_summary(
     summary = run(out, workers=2)
     serial = runs["root"] / "full"
     assert untimed(sorted(records(out), key=lambda r: r["episode"])) == untimed(records(serial))
+    in_order = [json.loads(line) for line in (out / "episodes_sorted.jsonl").read_text().splitlines()]
+    assert untimed(in_order) == untimed(records(serial))  # pairs line by line with the serial run
     for r in records(out):
         fresh, again = (json.loads((d / r["trace"]).read_text()) for d in (serial, out))
         fresh["decisions"].pop("time"), again["decisions"].pop("time")

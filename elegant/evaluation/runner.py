@@ -3,7 +3,10 @@
 A run directory holds::
 
     config.json      what the run is (suite, tasks, policy, critic, mode, seed, JITI settings, ...)
-    episodes.jsonl   one JSON line per finished episode, appended and flushed as it finishes
+    episodes.jsonl   one JSON line per finished episode, appended and flushed as it finishes (with several
+                     workers, in the order they finish)
+    episodes_sorted.jsonl  the same lines by task and episode index (written at the end): line i of two
+                     runs with the same seed and episodes then starts alike
     traces/          <suite>_<task>_<episode>.json: JITI's decision log of each episode (for plots)
     summary.json     metrics overall and per task (written atomically at the end)
     report.md, *.png the human-readable report
@@ -276,6 +279,8 @@ def evaluate(
             if fresh and not log.records:  # refused at its first episode (e.g. a critic of other tasks)
                 _remove_refused_run(out)
             raise
+        ordered = sorted(log.records, key=lambda r: (r.get("task_index", 0), r["task"], int(r["episode"])))
+        atomic_write(out / "episodes_sorted.jsonl", "".join(json.dumps(r) + "\n" for r in ordered))
         records = run_records(log.records, record)
         summary = {"config": record, **summarize(records)}
         atomic_write(out / "summary.json", json.dumps(summary, indent=2))
