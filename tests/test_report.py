@@ -186,3 +186,29 @@ def test_perturbation_axis_and_atomic_write(tmp_path):
     atomic_write(tmp_path / "f.txt", "one")
     atomic_write(tmp_path / "f.txt", b"two")
     assert (tmp_path / "f.txt").read_text() == "two" and [p.name for p in tmp_path.iterdir()] == ["f.txt"]
+
+
+def test_plots_show_intervals_and_legend_only_what_they_draw(monkeypatch, tmp_path):
+    from elegant.reporting import report
+
+    drawn = []
+    monkeypatch.setattr(report, "save_figure", lambda fig, path: drawn.append(fig) or path)
+    decisions = {
+        "step": [0, 8, 16],
+        "q": [-1.0, -2.0, -1.5],
+        "mean": [None, -1.5, -1.5],
+        "tau": [None, 0.5, 0.5],
+        "chosen_q": [-1.0, -2.0, -1.5],
+        "intervened": [False, False, False],
+    }
+    trace = {"task": "s/0", "episode": 0, "mode": "base", "success": True, "elegant": False, "violated": ["collision"],
+             "segments": {"collision": [True, False], "alignment": [False, True]}, "decisions": decisions}  # fmt: skip
+    report.plot_q_trace(trace, tmp_path / "q.png")
+    legend = [t.get_text() for t in drawn[-1].axes[0].get_legend().get_texts()]
+    assert legend == ["collision violated", "alignment violated", "Q(s, base action)"]  # no band, no intervention
+    assert "critic's estimate" in drawn[-1].axes[0].get_ylabel()
+    report.plot_bars(["s/0"], {"success": [0.5]}, "t", tmp_path / "b.png", {"success": [(0.3, 0.8)]})
+    errorbars = next(c for c in drawn[-1].axes[0].containers if type(c).__name__ == "ErrorbarContainer")
+    (segment,) = errorbars.lines[2][0].get_segments()
+    low, high = segment[:, 1]
+    assert (low, high) == pytest.approx((0.3, 0.8))  # the error bar spans the interval

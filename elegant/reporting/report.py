@@ -48,22 +48,36 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
 # ---- plots -----------------------------------------------------------------------------------------
 
 
-def plot_bars(groups: Sequence[str], series: Mapping[str, Sequence[float]], title: str, path: Path) -> Path:
-    """Grouped bars: one group per entry of `groups`, one bar per series (values are rates in [0, 1])."""
+def plot_bars(
+    groups: Sequence[str],
+    series: Mapping[str, Sequence[float]],
+    title: str,
+    path: Path,
+    intervals: Mapping[str, Sequence[Sequence[float]]] | None = None,
+) -> Path:
+    """Grouped bars: one group per entry of `groups`, one bar per series (values are rates in [0, 1]), with
+    `intervals[series][group]` = (low, high) drawn as error bars; the legend sits right of the axes, so it
+    covers no bar."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(max(5.0, 0.9 * len(groups) * max(1, len(series)) ** 0.5 + 2), 3.6))
+    fig = Figure(figsize=(max(5.0, 0.9 * len(groups) * max(1, len(series)) ** 0.5 + 2) + 2.2, 3.6))
     ax = fig.add_subplot()
     width = 0.8 / max(1, len(series))
     x = np.arange(len(groups))
     for i, (name, values) in enumerate(series.items()):
-        bars = ax.bar(x + (i - (len(series) - 1) / 2) * width, values, width, label=name)
-        ax.bar_label(bars, fmt="%.2f", fontsize=6)
+        values = _floats(values)
+        errors = None
+        if intervals is not None and name in intervals:
+            low, high = _floats([b[0] for b in intervals[name]]), _floats([b[1] for b in intervals[name]])
+            errors = np.vstack([values - low, high - values])
+        bars = ax.bar(x + (i - (len(series) - 1) / 2) * width, values, width, label=name, yerr=errors, capsize=2)
+        ax.bar_label(bars, fmt="%.2f", fontsize=6, label_type="center")
     ax.set_xticks(x, groups, rotation=30, ha="right", fontsize=8)
     ax.set_ylim(0, 1.05)
-    ax.set_ylabel("rate")
+    ax.set_ylabel("rate" + (" (95% interval over starts)" if intervals else ""))
     ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    fig.subplots_adjust(right=0.72)
     return save_figure(fig, path)
 
 
@@ -78,28 +92,34 @@ def plot_q_trace(trace: Mapping[str, Any], path: Path) -> Path:
     d = trace["decisions"]
     steps = np.asarray(d["step"])
     q, mean, tau, chosen_q = (_floats(d[k]) for k in ("q", "mean", "tau", "chosen_q"))
-    fig = Figure(figsize=(9, 3.6))
+    fig = Figure(figsize=(11, 3.6))
     ax = fig.add_subplot()
-    for kept in trace.get("segments", {}).values():
-        for w, ok in enumerate(kept):
-            if not ok:
-                ax.axvspan(w * SEGMENT_LENGTH, (w + 1) * SEGMENT_LENGTH, color="tab:orange", alpha=0.07, lw=0)
+    colours = dict(zip(CRITERIA, ("tab:purple", "tab:orange", "tab:green", "tab:brown")))
+    for criterion, kept in trace.get("segments", {}).items():
+        spans = [w for w, ok in enumerate(kept) if not ok]
+        for n, w in enumerate(spans):  # one colour per criterion, in the legend once
+            label = f"{criterion} violated" if n == 0 else None
+            ax.axvspan(w * SEGMENT_LENGTH, (w + 1) * SEGMENT_LENGTH, color=colours.get(criterion), alpha=0.12, lw=0,
+                       label=label)  # fmt: skip
     ax.plot(steps, q, lw=1.2, label="Q(s, base action)")
-    ax.plot(steps, mean, "--", lw=1, color="gray", label="window mean")
-    ax.fill_between(steps, mean - tau, mean + tau, color="gray", alpha=0.15, lw=0, label="mean ± τ")
+    if trace.get("mode") == "jiti" and np.isfinite(mean).any():  # only JITI's trigger uses the window
+        ax.plot(steps, mean, "--", lw=1, color="gray", label="window mean")
+        ax.fill_between(steps, mean - tau, mean + tau, color="gray", alpha=0.15, lw=0, label="mean ± τ")
     hit = np.asarray(d["intervened"], dtype=bool)
-    ax.scatter(
-        steps[hit], chosen_q[hit], marker="v", s=18, color="tab:red", zorder=3, label="intervention (executed Q)"
-    )
+    if hit.any():
+        ax.scatter(
+            steps[hit], chosen_q[hit], marker="v", s=18, color="tab:red", zorder=3, label="intervention (executed Q)"
+        )
     ax.set_xlabel("step")
-    ax.set_ylabel("Q")
+    ax.set_ylabel("Q: the critic's estimate of\nthe discounted elegance return", fontsize=8)
     violated = ", ".join(trace.get("violated", [])) or "none"
     ax.set_title(
         f"{trace['task']} episode {trace['episode']} ({trace['mode']}): success={trace['success']}, "
         f"elegant={trace['elegant']}, violated: {violated} (shaded windows)",
         fontsize=9,
     )
-    ax.legend(fontsize=7, loc="best")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    fig.subplots_adjust(right=0.8)
     return save_figure(fig, path)
 
 
@@ -156,6 +176,7 @@ def write_run_report(
             {"success": [per_task[t]["success_rate"] for t in tasks], "ESR": [per_task[t]["esr"] for t in tasks]},
             f"{cfg['suite']} — mode {cfg['mode']}",
             run_dir / "success_esr.png",
+            {"success": [per_task[t]["success_ci95"] for t in tasks], "ESR": [per_task[t]["esr_ci95"] for t in tasks]},
         )
     ]
     trace = _traced_episode(run_dir, records)
@@ -358,14 +379,15 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
     if out is not None:
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        groups = ["all", *tasks]
-        series = {}
+        groups = tasks if len(tasks) == 1 else ["all", *tasks]  # with one task "all" would repeat it
+        series, intervals = {}, {}
         for label, s in zip(labels, summaries):
             for metric, name in (("success_rate", "success"), ("esr", "ESR")):
-                series[f"{label} {name}"] = [
-                    s[metric] if g == "all" else s["per_task"].get(g, {}).get(metric, np.nan) for g in groups
-                ]
-        files = [plot_bars(groups, series, "success and ESR per task", out / "comparison.png")]
+                blocks = [s if g == "all" else s["per_task"].get(g, {}) for g in groups]
+                series[f"{label} {name}"] = [b.get(metric, np.nan) for b in blocks]
+                interval = "success_ci95" if metric == "success_rate" else "esr_ci95"
+                intervals[f"{label} {name}"] = [b.get(interval, (np.nan, np.nan)) for b in blocks]
+        files = [plot_bars(groups, series, "success and ESR per task", out / "comparison.png", intervals)]
         atomic_write(out / "comparison.md", markdown + "\n![success and ESR per task](comparison.png)\n")
         files.insert(0, out / "comparison.md")
     return {
