@@ -212,3 +212,18 @@ def test_plots_show_intervals_and_legend_only_what_they_draw(monkeypatch, tmp_pa
     (segment,) = errorbars.lines[2][0].get_segments()
     low, high = segment[:, 1]
     assert (low, high) == pytest.approx((0.3, 0.8))  # the error bar spans the interval
+
+
+def test_a_run_header_names_the_settings_its_mode_used_and_only_those():
+    from elegant.reporting.report import _settings_line
+
+    jiti = {"window": 4, "threshold": 2.0, "threshold_mode": "std", "trigger": "drop", "warmup": "steer",
+            "n_candidates": 16, "trust_radius": 1.5, "min_gain": 0.0, "max_overrides": None, "random_rate": 0.1,
+            "chunk": 8, "policy_adapter": "BCPolicy"}  # fmt: skip
+    config = {"jiti": jiti, "candidate_source": "the policy's samples"}
+    assert _settings_line({**config, "mode": "base"}) == "JITI: not used (the base policy acts alone)"
+    always = _settings_line({**config, "mode": "always"})
+    assert "trust radius 1.5" in always and "the policy's samples" in always and "trigger" not in always
+    full = _settings_line({**config, "mode": "jiti"})
+    assert all(s in full for s in ("trigger drop", "warm-up steer", "window 4", "threshold 2.0 (std)", "every 8 steps"))
+    assert "0.1 of decisions" in _settings_line({**config, "mode": "random"})

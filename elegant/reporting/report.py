@@ -162,6 +162,28 @@ def _traced_episode(run_dir: Path, records: Sequence[Mapping[str, Any]]) -> dict
     return trace if any(v is not None for v in trace["decisions"]["q"]) else None
 
 
+def _settings_line(cfg: Mapping[str, Any]) -> str:
+    """The settings that shaped a run of its mode, and only those (a base run used none of JITI's)."""
+    jiti, mode = cfg["jiti"], cfg["mode"]
+    if mode == "base":
+        return "JITI: not used (the base policy acts alone)"
+    source = cfg.get("candidate_source", f"{jiti['policy_adapter']}.sample")
+    radius = jiti.get("trust_radius")
+    candidates = f"N = {jiti['n_candidates']} candidates ({source}), trust radius {radius if radius else 'none'}"
+    chunk = f", decisions every {jiti['chunk']} steps" if jiti.get("chunk", 1) > 1 else ""
+    if mode == "random":
+        return f"random control: a random candidate at {jiti['random_rate']} of decisions; {candidates}{chunk}"
+    budget = jiti.get("max_overrides")
+    choice = f"min gain {jiti.get('min_gain', 0.0)}, override budget {budget if budget is not None else 'none'}"
+    if mode == "always":
+        return f"always: the critic re-ranks every decision; {candidates}; {choice}{chunk}"
+    trigger = (
+        f"trigger {jiti.get('trigger', 'deviation')}, warm-up {jiti.get('warmup', 'base')}, window {jiti['window']}, "
+        f"threshold {jiti['threshold']} ({jiti['threshold_mode']})"
+    )
+    return f"JITI: {trigger}; {candidates}; {choice}{chunk}"
+
+
 def write_run_report(
     run_dir: str | os.PathLike, summary: Mapping[str, Any], records: Sequence[Mapping[str, Any]]
 ) -> list[Path]:
@@ -182,7 +204,6 @@ def write_run_report(
     trace = _traced_episode(run_dir, records)
     if trace is not None:
         files.append(plot_q_trace(trace, run_dir / "q_trace.png"))
-    jiti = cfg["jiti"]
     lines = [
         f"# Evaluation: {cfg['suite']}, mode `{cfg['mode']}`",
         "",
@@ -190,8 +211,7 @@ def write_run_report(
         f"- critic: `{cfg['critic']}`",
         f"- tasks: {', '.join(map(str, cfg['tasks']))}; episodes per task: {cfg['episodes']}; seed: {cfg['seed']}",
         f"- perturbation: {cfg['perturbation'] or 'none'}; max steps: {cfg['max_steps'] or 'suite default'}",
-        f"- JITI: window {jiti['window']}, threshold {jiti['threshold']} ({jiti['threshold_mode']}), "
-        f"N = {jiti['n_candidates']}, candidates from {jiti['policy_adapter']}.sample",
+        f"- {_settings_line(cfg)}",
         "",
         "## Overall",
         "",
