@@ -83,8 +83,10 @@ class Perturbation:
 
     @property
     def robustness_axis(self) -> str:
-        """The LIBERO-PRO axis a run under this operator reports on (`elegant report`)."""
-        return self.axis
+        """The column a run under this operator reports in (`elegant report`): the axis, with its mode when
+        it is not the generated default ("language@shipped" and "language@target_swap" are different
+        LIBERO-PRO axes; a generated and a shipped run of one axis are different variants)."""
+        return self.axis if self.mode == self.modes[0] else f"{self.axis}@{self.mode}"
 
 
 def _shipped_variant(task: TaskSpec, axis: str) -> TaskSpec:
@@ -166,10 +168,6 @@ class InitPerturbation(Perturbation):
     def margin(self) -> float:
         """How far apart two footprints must stay (xy, along some axis)."""
         return self.clearance / 4
-
-    @property
-    def robustness_axis(self) -> str:
-        return "init@nudge" if self.mode == "nudge" else self.axis
 
     def plan(self, plan: BuildPlan) -> BuildPlan:
         if self.mode == "shipped":

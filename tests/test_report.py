@@ -135,6 +135,9 @@ def test_compare_runs_side_by_side_with_robustness(tmp_path):
     again = compare_runs([tmp_path / "ori", tmp_path / "init", tmp_path / "init_sampled"])
     (group,) = again["robustness"].values()  # the sampling policy's perturbed run has no unperturbed partner
     assert group["success"]["acc"] == {"init": 0.25}
+    make_run(tmp_path / "init_again", "jiti", [True] * 4, perturbation="init:5")  # the same cell as "init"
+    with pytest.raises(UserInputError, match=r"runs .*init and .*init_again are both the 'init' cell"):
+        compare_runs([tmp_path / "ori", tmp_path / "init", tmp_path / "init_again"])
 
 
 def test_compare_runs_pairs_later_runs_with_the_first_on_shared_starts(tmp_path):
@@ -181,8 +184,12 @@ def test_compare_runs_without_out_writes_nothing_and_refuses_non_runs(tmp_path):
 
 
 def test_perturbation_axis_and_atomic_write(tmp_path):
-    assert perturbation_axis(None) == "ori" and perturbation_axis("init:3,language@shipped") == "init+language"
+    assert perturbation_axis(None) == "ori" and perturbation_axis("init:3,language") == "init+language"
     assert perturbation_axis("init:2@nudge") == "init@nudge"  # fresh starts, not LIBERO-PRO's init axis
+    # LIBERO-PRO's semantic and task axes, and a shipped against a generated variant, are columns of their own
+    assert perturbation_axis("language@shipped") == "language@shipped"
+    assert perturbation_axis("language@target_swap") == "language@target_swap"
+    assert perturbation_axis("object@shipped") != perturbation_axis("object")
     atomic_write(tmp_path / "f.txt", "one")
     atomic_write(tmp_path / "f.txt", b"two")
     assert (tmp_path / "f.txt").read_text() == "two" and [p.name for p in tmp_path.iterdir()] == ["f.txt"]

@@ -286,17 +286,20 @@ def _paired_cell(p: Mapping[str, Any]) -> str:
 
 
 def perturbation_axis(perturbation: str | None) -> str:
-    """The robustness axis a run's perturbation string belongs to: "ori" for none, "init+language" for two
-    (each operator names its own: nudged starts are "init@nudge", not LIBERO-PRO's position perturbation)."""
+    """The robustness column a run's perturbation string belongs to: "ori" for none, "init+language" for two;
+    an operator in a mode other than its generated default keeps the mode ("language@shipped" is LIBERO-PRO's
+    semantic axis, "language@target_swap" its task axis, "init@nudge" fresh starts, not its position axis)."""
     if not perturbation:
         return "ori"
     return "+".join(p.robustness_axis for p in parse_perturbations(perturbation))
 
 
-def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """LIBERO-PRO numbers for each group of runs that differ only in their perturbation."""
+def _robustness(summaries: Sequence[Mapping[str, Any]], dirs: Sequence[Path]) -> dict[str, Any]:
+    """LIBERO-PRO numbers for each group of runs that differ only in their perturbation; two runs for one
+    cell are refused, naming both."""
     groups: dict[str, dict[str, Mapping[str, Any]]] = {}
-    for s in summaries:
+    where: dict[tuple[str, str], Path] = {}
+    for s, run_dir in zip(summaries, dirs):
         cfg = s["config"]
         key = json.dumps(
             [
@@ -308,7 +311,14 @@ def _robustness(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
                 cfg.get("policy_act", DEFAULT_POLICY_ACT),
             ]
         )
-        groups.setdefault(key, {})[perturbation_axis(cfg["perturbation"])] = s
+        axis = perturbation_axis(cfg["perturbation"])
+        if (key, axis) in where:
+            raise UserInputError(
+                f"report: runs {where[key, axis]} and {run_dir} are both the '{axis}' cell of one robustness "
+                "table (same suite, tasks, policy, critic, mode and policy act); pass one of them"
+            )
+        where[key, axis] = run_dir
+        groups.setdefault(key, {})[axis] = s
     out = {}
     for key, by_axis in groups.items():
         if "ori" in by_axis and len(by_axis) > 1:
@@ -373,7 +383,7 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
                 ],
             ),
         ]
-    robustness = _robustness(summaries)
+    robustness = _robustness(summaries, dirs)
     for name, r in robustness.items():
         axes = list(r["success"]["acc"])
         lines += [
