@@ -1,4 +1,6 @@
-"""Base policies: the `Policy` protocol, adapters for callables / LeRobot / TorchRL, and the BC-GMM policy.
+"""Base policies: the `Policy` protocol, adapters for callables / LeRobot / TorchRL, the BC-GMM policy, policy
+specs (`open_policy`: a directory, an entry point or a server), and openpi's websocket protocol both ways
+(`OpenPIPolicy`, `serve_policy`).
 
 The BC names load torch on first use (PEP 562 lazy attributes), so importing the protocol and adapters
 stays instant for commands that never touch a network.
@@ -29,6 +31,10 @@ from elegant.policies.protocol import (
 )
 
 _LAZY = {
+    "OpenPIPolicy": "elegant.policies.remote",
+    "describe_policy": "elegant.policies.specs",
+    "open_policy": "elegant.policies.specs",
+    "serve_policy": "elegant.policies.server",
     "BCPolicy": "elegant.policies.bc_policy",
     "load_policy": "elegant.policies.bc_policy",
     "train_policy": "elegant.policies.bc_train",
@@ -42,6 +48,7 @@ __all__ = [
     "GaussianCandidates",
     "LayoutSlice",
     "LeRobotPolicy",
+    "OpenPIPolicy",
     "POLICY_ACTS",
     "Policy",
     "PolicyAdapter",
@@ -51,8 +58,11 @@ __all__ = [
     "as_action",
     "as_policy",
     "chunk_of",
+    "describe_policy",
     "lerobot_libero_state",
     "load_policy",
+    "open_policy",
+    "serve_policy",
     "train_policy",
 ]
 
