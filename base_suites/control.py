@@ -19,11 +19,10 @@ and the throughput benchmark can run both).
 
 from __future__ import annotations
 
-from typing import Any, Literal, get_args
+from typing import TYPE_CHECKING, Any, Literal, get_args
 
-import mujoco
-
-from base_suites.arm_control import ArmControl
+if TYPE_CHECKING:
+    from base_suites.arm_control import ArmControl
 
 Physics = Literal["fast", "robosuite"]
 PHYSICS: tuple[str, ...] = get_args(Physics)
@@ -39,6 +38,8 @@ class FastControl:
     def step(self, domain: Any, action: Any) -> bool:
         """One control step of LIBERO's robosuite env `domain` with `action`, leaving the simulator where
         `domain.step(action)` would; returns whether the task's goal holds afterwards."""
+        import mujoco  # here, not at import: building the CLI's options must not load the simulator
+
         if domain.done:
             raise ValueError("executing action in terminated episode")
         domain.timestep += 1
@@ -60,7 +61,9 @@ class FastControl:
         domain._post_process()
         return bool(domain._check_success())
 
-    def _arms_of(self, domain: Any, model: mujoco.MjModel) -> list[ArmControl]:
+    def _arms_of(self, domain: Any, model: Any) -> list[ArmControl]:
+        from base_suites.arm_control import ArmControl
+
         if len(self._arms) != len(domain.robots) or any(
             arm.controller is not robot.controller for arm, robot in zip(self._arms, domain.robots)
         ):
