@@ -86,6 +86,7 @@ def test_rate_interval_is_wilsons():
     assert rate_interval(16, 25) == pytest.approx([centre - half, centre + half])
     low, high = rate_interval(0, 10)
     assert low == 0.0 and 0.2 < high < 0.35  # never a zero-width interval at 0 of 10
+    assert all(rate_interval(0, n)[0] == 0.0 and rate_interval(n, n)[1] == 1.0 for n in range(1, 60))
     assert summarize(RECORDS)["esr_ci95"] == pytest.approx(rate_interval(1, 3))
     with pytest.raises(UserInputError, match="no episodes"):
         rate_interval(0, 0)

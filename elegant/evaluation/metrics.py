@@ -69,7 +69,8 @@ def wilson_interval(rate: float, n: float, confidence: float = 0.95) -> list[flo
     scale = 1.0 + z * z / n
     center = (rate + z * z / (2 * n)) / scale
     half = z * np.sqrt(rate * (1.0 - rate) / n + z * z / (4 * n * n)) / scale
-    return [float(max(0.0, center - half)), float(min(1.0, center + half))]
+    # the interval holds the rate exactly (rounding would otherwise leave 1 - 1e-16 at a rate of 1)
+    return [float(min(max(0.0, center - half), rate)), float(max(min(1.0, center + half), rate))]
 
 
 def rate_interval(hits: int, n: int, confidence: float = 0.95) -> list[float]:

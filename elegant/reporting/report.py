@@ -69,7 +69,7 @@ def plot_bars(
         errors = None
         if intervals is not None and name in intervals:
             low, high = _floats([b[0] for b in intervals[name]]), _floats([b[1] for b in intervals[name]])
-            errors = np.vstack([values - low, high - values])
+            errors = np.maximum(np.vstack([values - low, high - values]), 0.0)  # rounding at a rate of 0 or 1
         bars = ax.bar(x + (i - (len(series) - 1) / 2) * width, values, width, label=name, yerr=errors, capsize=2)
         ax.bar_label(bars, fmt="%.2f", fontsize=6, label_type="center")
     ax.set_xticks(x, groups, rotation=30, ha="right", fontsize=8)
