@@ -3,6 +3,8 @@ server, and `module:factory` entry points, through the policy spec every command
 
 from __future__ import annotations
 
+import json
+import os
 import re
 import threading
 import time
@@ -30,6 +32,18 @@ def policy_dir(tmp_path_factory):
     demos = collect_demos("libero_object", [0], str(root / "demos.hdf5"), episodes=2, seed=0, progress=False)
     train_policy([demos["out"]], str(root / "policy"), epochs=2, hidden=(32,), progress=False)
     return str(root / "policy")
+
+
+@pytest.fixture(scope="module")
+def critic_dir(policy_dir):
+    """A few steps of a critic on the same demos' annotation (for the JITI modes from the CLI)."""
+    from annotations import annotate_file
+    from critics import train_critic
+
+    root = os.path.dirname(policy_dir)
+    annotate_file(os.path.join(root, "demos.hdf5"), os.path.join(root, "annotated.hdf5"), progress=False)
+    train_critic([os.path.join(root, "annotated.hdf5")], os.path.join(root, "critic"), steps=5, progress=False)
+    return os.path.join(root, "critic")
 
 
 class Server:
@@ -307,3 +321,24 @@ def test_a_served_policy_runs_under_elegant_eval_from_the_cli_and_resumes(served
     assert (
         len(records) == 2 and '"candidate_source": "server samples"' in (tmp_path / "run" / "config.json").read_text()
     )
+
+
+@pytest.mark.parametrize("mode", ["always", "jiti"])
+@pytest.mark.parametrize("kind", ["served", "entry point", "lerobot-style"])
+def test_every_kind_of_policy_runs_under_the_jiti_modes_from_the_cli_with_images(
+    kind, mode, served, critic_dir, tmp_path, capsys
+):
+    from elegant.cli import main
+
+    policy = {"served": served, "entry point": "policy_entry_points:make_policy",
+              "lerobot-style": "policy_entry_points:make_lerobot_style"}[kind]  # fmt: skip
+    code = main(
+        ["eval", "--suite", "libero_object", "--tasks", "0", "--policy", policy, "--critic", critic_dir,
+         "--mode", mode, "--episodes", "1", "--max-steps", "3", "--obs", "vla", "--window", "1",
+         "--out", str(tmp_path / "run")]
+    )  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    config = (tmp_path / "run" / "config.json").read_text()
+    assert f'"mode": "{mode}"' in config and '"obs": "vla"' in config
+    if mode == "always":  # the critic re-ranked the policy's candidates at every decision
+        assert json.loads(capsys.readouterr().out)["interventions_per_episode"] > 0
