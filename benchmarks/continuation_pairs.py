@@ -8,8 +8,7 @@ changes an action; `pair_preference` reports how often the clean continuation sc
 
 from __future__ import annotations
 
-import itertools
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -18,6 +17,7 @@ import numpy as np
 from annotations import task_key
 from base_suites.env import LiberoEnv
 from base_suites.experts import ScriptedExpert
+from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.seeds import derive_seed
 from critics.data import action_chunks
@@ -67,37 +67,46 @@ class Scorer(Protocol):
     def q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray: ...
 
 
-def _episode(
-    env: LiberoEnv, expert: ScriptedExpert, init: int, reset_seed: int
-) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-    """(state, action) of every step of one expert episode from a given start, until the env ends it.
+class _StepRecording(StepObserver):
+    """Records (state, action) of each step. Given the clean episode's actions, it stops the episode
+    `window` steps after the first action that differs from them (the branch step t*), or once the clean
+    episode's steps are used up without a difference (the knob never acted)."""
+
+    def __init__(self, clean_actions: Sequence[np.ndarray] | None = None, window: int = 0) -> None:
+        self.steps: list[tuple[np.ndarray, np.ndarray]] = []
+        self.clean, self.window = clean_actions, window
+        self.branch: int | None = None
+        self._state: np.ndarray | None = None
+
+    def before_step(self, env: LiberoEnv, obs: Mapping[str, np.ndarray]) -> None:
+        self._state = obs["state"]
+
+    def after_step(self, env: LiberoEnv, action: np.ndarray, obs: Any, reward: float, info: Any) -> bool:
+        t = len(self.steps)
+        self.steps.append((self._state, action))
+        if self.clean is None:
+            return False
+        if self.branch is None:
+            if not np.array_equal(action, self.clean[t]):
+                self.branch = t
+            elif t == len(self.clean) - 1:
+                return True  # the clean episode's last step, and still no difference: nothing to compare
+        return self.branch is not None and t - self.branch + 1 >= self.window
+
+
+def _episode(env: LiberoEnv, expert: ScriptedExpert, init: int, reset_seed: int, recording: _StepRecording) -> None:
+    """One expert episode from a given start through the one rollout loop, watched by `recording`.
 
     The reset seed fixes the scene and the episode number (the init index) fixes the expert's RNG, so a
     clean and a knob expert replay the same steps until the knob first acts.
     """
     obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
     expert.reset(env.metadata, episode=init)
-    while True:
-        action = expert(obs)
-        yield obs["state"], action
-        obs, _, terminated, truncated, _ = env.step(action)
-        if terminated or truncated:
-            return
+    run_episode(env, expert, obs, [recording])
 
 
 def _continuation(steps: Sequence[tuple[np.ndarray, np.ndarray]]) -> Continuation:
     return Continuation(np.array([s for s, _ in steps]), np.array([a for _, a in steps]))
-
-
-def _branch(
-    clean_actions: Sequence[np.ndarray], knob_steps: Iterator[tuple[np.ndarray, np.ndarray]], window: int
-) -> tuple[int, list[tuple[np.ndarray, np.ndarray]]] | None:
-    """Follow the knob episode to its first action that differs from the clean one (t*) and keep its
-    steps t*..t*+window-1; None if it never differs (the knob did not act before the episode ended)."""
-    for t, (clean_action, (state, action)) in enumerate(zip(clean_actions, knob_steps)):
-        if not np.array_equal(action, clean_action):
-            return t, [(state, action), *itertools.islice(knob_steps, window - 1)]
-    return None
 
 
 def _check_pair_inputs(knobs: Sequence[str], inits: Sequence[int], window: int) -> None:
@@ -140,17 +149,18 @@ def continuation_pairs(
     try:
         for init in inits:
             reset_seed = derive_seed(seed, init)
-            clean_steps = list(_episode(env, clean, init, reset_seed))
-            clean_actions = [a for _, a in clean_steps]
+            clean_run = _StepRecording()
+            _episode(env, clean, init, reset_seed, clean_run)
+            clean_actions = [a for _, a in clean_run.steps]
             for knob, expert in experts.items():
-                branched = _branch(clean_actions, _episode(env, expert, init, reset_seed), window)
-                if branched is None:
+                knob_run = _StepRecording(clean_actions, window)
+                _episode(env, expert, init, reset_seed, knob_run)
+                t = knob_run.branch
+                if t is None:
                     skipped[knob] += 1
                     continue
-                t, knob_steps = branched
-                pairs.append(
-                    Pair(key, int(init), knob, t, _continuation(clean_steps[t : t + window]), _continuation(knob_steps))
-                )
+                clean_side = _continuation(clean_run.steps[t : t + window])
+                pairs.append(Pair(key, int(init), knob, t, clean_side, _continuation(knob_run.steps[t:])))
         return PairList(pairs, env.metadata, skipped)
     finally:
         env.close()
