@@ -43,7 +43,7 @@ def import_libero_hdf5(
     `out` only with `overwrite`, replaced once the new file is complete)."""
     from tqdm import tqdm
 
-    check_output(out, "file", overwrite=overwrite)
+    check_output(out, "file", overwrite=overwrite, resumable=False)
     if not os.path.exists(path):
         raise UserInputError(f"{path}: no such file")
     try:

@@ -433,6 +433,7 @@ def _gate_args(p: argparse.ArgumentParser) -> None:
         "(default: elegant.intervention.gate.INTERVENTION_BUDGET, 0.4)",
     )
     p.add_argument("--out", required=True, help="gate file (JSON) for elegant eval --gate")
+    _overwrite_arg(p)
 
 
 @command(
@@ -442,8 +443,8 @@ def _gate_args(p: argparse.ArgumentParser) -> None:
 def _gate(args: argparse.Namespace) -> dict:
     from elegant.intervention.gate import write_gate
 
-    budget = {} if args.budget is None else {"budget": args.budget}
-    return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, **budget)
+    settings = {"overwrite": args.overwrite, **({} if args.budget is None else {"budget": args.budget})}
+    return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, **settings)
 
 
 def _lifelong_args(p: argparse.ArgumentParser) -> None:

@@ -157,7 +157,9 @@ def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int
                     workers=workers,
                 )
             gates[suite] = os.path.join(out, f"gate_{suite}.json")
-            write_gate(validation["base"], validation["jiti"], gates[suite], always_run=validation.get("always"))
+            # derived again from the same validation runs on every resume: the same file
+            always = validation.get("always")
+            write_gate(validation["base"], validation["jiti"], gates[suite], always_run=always, overwrite=True)
     summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
     for mode in cfg.modes:
         for suite in cfg.suites:

@@ -104,6 +104,8 @@ def test_refusals_name_the_file_and_the_field(tmp_path):
     with pytest.raises(UserInputError, match="share no finished episode"):
         task_gate(base, write_run(tmp_path / "elsewhere", "jiti", {"libero_goal/2": [0]}))
     write_gate(base, jiti, tmp_path / "gate.json")
+    with pytest.raises(UserInputError, match="gate.json: exists; pass --overwrite to replace it"):
+        write_gate(base, jiti, tmp_path / "gate.json")  # a gate that runs used is not replaced by accident
     with pytest.raises(UserInputError, match="field 'init_states' overlaps the evaluation's starts \\(\\[2\\]\\)"):
         read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [2, 30], AGENT)
     with pytest.raises(UserInputError, match="overlaps the evaluation's starts \\(all init states\\)"):

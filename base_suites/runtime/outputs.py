@@ -21,9 +21,11 @@ def check_output(
     resume: bool = False,
     overwrite: bool = False,
     results: tuple[str, ...] = (),
+    resumable: bool = True,
 ) -> str:
     """Check that `path` can be written as a `kind` output; return it as a string. For a directory,
-    `results` names the files inside it that make it a finished (or interrupted) result."""
+    `results` names the files inside it that make it a finished (or interrupted) result; `resumable`: the
+    command has a --resume to suggest."""
     path = os.fspath(path)
     if not path.strip():
         raise UserInputError("the output path is empty")
@@ -47,9 +49,8 @@ def check_output(
     held = (path, path + ".partial") if kind == "file" else tuple(os.path.join(path, name) for name in results)
     found = [f for f in held if os.path.exists(f)]
     if found and not (resume or overwrite):
-        raise UserInputError(
-            f"{found[0]}: exists; pass --resume to continue it, --overwrite to replace it, or choose another path"
-        )
+        continuing = "--resume to continue it, " if resumable else ""
+        raise UserInputError(f"{found[0]}: exists; pass {continuing}--overwrite to replace it, or choose another path")
     return path
 
 

@@ -26,6 +26,7 @@ from typing import Any
 from base_suites import UserInputError
 from base_suites.runtime.io import atomic_write, read_json_file
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.outputs import check_output
 from elegant.evaluation.episode_log import EpisodeLog
 
 GATE_FORMAT = "libero-elegant-gate/3"
@@ -195,8 +196,11 @@ def write_gate(
     out: str | os.PathLike,
     always_run: str | os.PathLike | None = None,
     budget: float = INTERVENTION_BUDGET,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """`task_gate` written atomically to `out` (JSON); returns it."""
+    """`task_gate` written atomically to `out` (JSON); returns it. An existing gate file is replaced only
+    with `overwrite` (runs that used it would otherwise no longer match it)."""
+    check_output(out, "file", overwrite=overwrite, resumable=False)
     gate = task_gate(base_run, jiti_run, always_run, budget)
     atomic_write(out, json.dumps(gate, indent=2))
     return gate
