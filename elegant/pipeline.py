@@ -14,6 +14,7 @@ import os
 from typing import Any
 
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.locks import output_lock
 from elegant.chain_config import ChainConfig, check_chain_settings, load_recipe
 
 
@@ -50,8 +51,15 @@ def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int
 
     Returns {mode: pooled success_rate, esr, interventions_per_episode}, per_suite {suite: {mode: the
     same}}, per_task {suite: {mode: the run summary's per-task rows}}, report (the path of the comparison
-    markdown), runs ({mode: {suite: run directory}}).
+    markdown), runs ({mode: {suite: run directory}}), effects (`chain_effects` per suite). A second chain
+    writing `out` at the same time is refused (`base_suites.runtime.locks`).
     """
+    with output_lock(out):
+        return _run_chain(out, config, progress, workers)
+
+
+def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int) -> dict[str, Any]:
+    """`run_chain`'s work, with the chain directory's lock held."""
     from annotations import annotate_file
     from annotations.collect import collect_demos
     from critics import train_critic

@@ -222,3 +222,15 @@ def test_a_real_full_disk_keeps_the_finished_demos_and_resume_completes_the_file
         assert file_contents(out) == file_contents(write_demos(str(tmp_path / "reference.hdf5"), count=8))
     finally:
         subprocess.run(["umount", str(disk)], capture_output=True)
+
+
+def test_a_running_chain_holds_its_directory(tmp_path):
+    from base_suites.runtime.locks import output_lock
+    from elegant.chain_config import load_recipe
+    from elegant.pipeline import run_chain
+
+    out = tmp_path / "chain"
+    with output_lock(out):
+        with pytest.raises(UserInputError, match="chain: in use by another run"):
+            run_chain(str(out), load_recipe("quickstart"), progress=False)
+    assert not out.exists()

@@ -49,6 +49,7 @@ from base_suites import get_task
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import check_workers
+from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
@@ -236,31 +237,32 @@ def run_lifelong(
         "modes": int(modes),
     }
     out = Path(out)
-    _prepare(out, config, resume)
-    K, E = len(keys), len(config["eval_epochs"])
-    C = np.zeros((2, K, E))
-    S = np.full((2, K, K), np.nan)
-    kept_epochs = []
-    with tqdm(total=K, desc="lifelong", unit="task", disable=not progress) as bar:
-        run = _Run(out, config, paths, features, bar.set_postfix_str, workers)
-        for k in range(K):
-            kept_epochs.append(_learn_and_measure(run, k, C, S))
-            bar.update(1)
-    result = {
-        "config": config,
-        "kept_epochs": kept_epochs,
-        "kept_policies": run.kept,
-        "S": _matrix(S[0]),
-        "C": C[0].tolist(),
-        "S_elegant": _matrix(S[1]),
-        "C_elegant": C[1].tolist(),
-        "metrics": lifelong_metrics(S[0], C[0]),
-        # Checkpoints are kept by success, so the elegant curves are clamped where those were kept.
-        "metrics_elegant": lifelong_metrics(S[1], C[1], kept=[int(np.argmax(row)) for row in C[0]]),
-    }
-    atomic_write_json(out / "lifelong.json", result)
-    _write_report(out, result, S, C)
-    return result
+    with output_lock(out):  # one writer per lifelong run directory
+        _prepare(out, config, resume)
+        K, E = len(keys), len(config["eval_epochs"])
+        C = np.zeros((2, K, E))
+        S = np.full((2, K, K), np.nan)
+        kept_epochs = []
+        with tqdm(total=K, desc="lifelong", unit="task", disable=not progress) as bar:
+            run = _Run(out, config, paths, features, bar.set_postfix_str, workers)
+            for k in range(K):
+                kept_epochs.append(_learn_and_measure(run, k, C, S))
+                bar.update(1)
+        result = {
+            "config": config,
+            "kept_epochs": kept_epochs,
+            "kept_policies": run.kept,
+            "S": _matrix(S[0]),
+            "C": C[0].tolist(),
+            "S_elegant": _matrix(S[1]),
+            "C_elegant": C[1].tolist(),
+            "metrics": lifelong_metrics(S[0], C[0]),
+            # Checkpoints are kept by success, so the elegant curves are clamped where those were kept.
+            "metrics_elegant": lifelong_metrics(S[1], C[1], kept=[int(np.argmax(row)) for row in C[0]]),
+        }
+        atomic_write_json(out / "lifelong.json", result)
+        _write_report(out, result, S, C)
+        return result
 
 
 def _matrix(S: np.ndarray) -> list[list[float | None]]:
