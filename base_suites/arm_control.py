@@ -54,6 +54,7 @@ class ArmControl:
         )
         _require(type(robot.gripper).format_action is PandaGripper.format_action, "the gripper must be a Panda's")
         self._robot = robot
+        self.action_dim = robot.action_dim  # a property robosuite recomputes on every read
         self.controller = controller
         self._gripper = robot.gripper
         self._site = model.site(controller.eef_name).id
@@ -80,7 +81,7 @@ class ArmControl:
     def set_action(self, action: np.ndarray, data: mujoco.MjData) -> None:
         """Take a new policy action (robosuite's `policy_step`): the controller's goal from the arm part, the
         gripper's per-substep increment from the gripper part, on the state `mj_step1` left in `data`."""
-        _require(len(action) == self._robot.action_dim, f"action has {len(action)} entries")
+        _require(len(action) == self.action_dim, f"action has {len(action)} entries")
         self._update(data)
         self.controller.set_goal(action[: self._control_dim])  # its own update() finds the state current
         self._gripper_step = np.array([-1.0, 1.0]) * self._gripper.speed * np.sign(action[self._control_dim :])

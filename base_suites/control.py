@@ -49,9 +49,9 @@ class FastControl:
             mujoco.mj_step1(model, data)
             if substep == 0:  # robosuite's policy step
                 cutoff = 0
-                for robot, arm in zip(domain.robots, arms):
-                    arm.set_action(action[cutoff : cutoff + robot.action_dim], data)
-                    cutoff += robot.action_dim
+                for arm in arms:
+                    arm.set_action(action[cutoff : cutoff + arm.action_dim], data)
+                    cutoff += arm.action_dim
             for arm in arms:
                 arm.apply(data)
             mujoco.mj_step2(model, data)

@@ -82,14 +82,13 @@ def check_init_states(init_states: Sequence[int] | None, n_init_states: int) -> 
 
 
 def _describe(obj: Any) -> str | None:
-    """How config.json names a policy or critic: its directory (comma-separated directories for a critic
-    ensemble), or the qualified name of its type."""
+    """How config.json names a critic: its directory (comma-separated directories for an ensemble), or the
+    qualified name of its type (as `describe_policy` names a policy object)."""
     if obj is None:
         return None
     if isinstance(obj, (str, os.PathLike)):
         return ",".join(os.path.abspath(path) for path in os.fspath(obj).split(","))
-    named = obj if hasattr(obj, "__qualname__") else type(obj)
-    return f"{named.__module__}.{named.__qualname__}"
+    return describe_policy(obj)
 
 
 def open_critic(critic: Any) -> Any:

@@ -34,12 +34,19 @@ from base_suites.runtime.errors import UserInputError, unknown_choice
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet, gmm_component_means, gmm_mode, gmm_sample
-from elegant.policies.protocol import ACTION_DIM, DEFAULT_POLICY_ACT, POLICY_ACTS, Observation, check_count
+from elegant.policies.protocol import (
+    ACTION_DIM,
+    DEFAULT_POLICY_ACT,
+    POLICY_ACTS,
+    ExecutesPlans,
+    Observation,
+    check_count,
+)
 
 _ACT_STREAM = 0x5A17  # offsets the execution generator's seed from the candidates' (same episode seed)
 
 
-class BCPolicy:
+class BCPolicy(ExecutesPlans):
     """A `ChunkedPolicy` over the env's low-dimensional state (see module docstring); with `chunk` 1 it
     decides every step. Its candidates are draws from its own mixture.
 
@@ -127,14 +134,6 @@ class BCPolicy:
         state = self._state(obs)
         if self._last_state is None or not np.array_equal(self._last_state, state):
             self._push(state)
-
-    def __call__(self, obs: Observation) -> np.ndarray:
-        """The next action: the first of a new `plan` when the last chunk is used up, else the chunk's next."""
-        if self._queue:
-            self.observe(obs)
-        else:
-            self._queue.extend(self.plan(obs))
-        return self._queue.popleft()
 
     def observe(self, obs: Observation) -> None:
         """See an observation at which no decision is taken (inside a chunk)."""

@@ -98,6 +98,21 @@ def check_count(n: int) -> int:
     return int(n)
 
 
+class ExecutesPlans:
+    """A `ChunkedPolicy`'s `__call__`, shared by the chunked policies: the first action of a new `plan`
+    when the last chunk is used up, else the chunk's next action (the observation then only `observe`d).
+    Needs `self._queue`, a deque of the current chunk's remaining actions."""
+
+    _queue: Any
+
+    def __call__(self, obs: Observation) -> np.ndarray:
+        if self._queue:
+            self.observe(obs)
+        else:
+            self._queue.extend(self.plan(obs))
+        return self._queue.popleft()
+
+
 class GaussianCandidates:
     """Candidates for a deterministic policy: its action plus clipped Gaussian perturbations.
 

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from base_suites.runtime.errors import UserInputError
-from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Observation, check_count
+from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, ExecutesPlans, Observation, check_count
 
 EXTENSION = "libero_elegant"  # the server metadata key of this project's protocol extension
 OPENPI_REPLAN_STEPS = 5  # openpi's LIBERO client executes 5 actions of each chunk
@@ -41,7 +41,7 @@ def server_uri(address: str) -> str:
     return "ws://" + address.removeprefix("openpi://") if address.startswith("openpi://") else address
 
 
-class OpenPIPolicy:
+class OpenPIPolicy(ExecutesPlans):
     """The policy an openpi policy server at `address` serves (see the module docstring). `replan_steps`:
     actions executed per chunk (default: the server's chunk when it announces one, else 5); `timeout`:
     seconds to wait for a reply."""
@@ -80,14 +80,6 @@ class OpenPIPolicy:
         self._metadata = dict(metadata or {})
         self._queue.clear()
         self._pending_reset = {"metadata": json.dumps(self._metadata, default=str), "seed": seed}
-
-    def __call__(self, obs: Observation) -> np.ndarray:
-        """The next action: the first of a new `plan` when the last chunk is used up, else the chunk's next."""
-        if self._queue:
-            self.observe(obs)
-        else:
-            self._queue.extend(self.plan(obs))
-        return self._queue.popleft()
 
     def plan(self, obs: Observation) -> np.ndarray:
         reply = self._request(obs, "plan")
