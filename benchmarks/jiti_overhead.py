@@ -95,7 +95,7 @@ def main() -> dict[str, Any]:
         critic, critic_desc = random_critic(env.metadata), "untrained critics Critic, twin 256x256 (timing only)"
     settings = {
         "base": {"mode": "base"},
-        "jiti": {"mode": "jiti", "threshold": 2.0, "threshold_mode": "std"},
+        "jiti": {"mode": "jiti"},  # the recipe: JITI's defaults
         "always": {"mode": "always"},
     }
     modes = {}

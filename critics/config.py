@@ -23,17 +23,18 @@ VALUE_LOSSES: tuple[str, ...] = get_args(ValueLoss)
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything that determines the trained numbers (saved in the checkpoint and the artifact); each
-    field is also an option of `elegant train-critic`."""
+    field is also an option of `elegant train-critic`. The defaults are the recommended recipe's outcome
+    critic (configs/effect.yaml), apart from `explored_fraction`, which needs explored rollouts."""
 
     paths: list[str] = setting(help="annotated HDF5 files, all with the same gamma", factory=list)
-    steps: int = setting(20000, "gradient steps in all (a resumed run continues up to it)")
+    steps: int = setting(4000, "gradient steps in all (a resumed run continues up to it)")
     batch_size: int = setting(256, "transitions per step")
     seed: int = setting(0, "network initialisation, replay sampling and action draws")
     n_actions: int = setting(10, "sampled actions per state for the CQL term (uniform, pi(.|s), pi(.|s'))")
     hidden: list[int] = setting(
-        help="hidden layer widths of the critics and the actor, e.g. 64,64", factory=lambda: [256, 256]
+        help="hidden layer widths of the critics and the actor, e.g. 64,64", factory=lambda: [64, 64]
     )
-    cql_weight: float = setting(5.0, "weight of the CQL term")
+    cql_weight: float = setting(0.2, "weight of the CQL term")
     temperature: float = setting(1.0, "the CQL logsumexp's temperature")
     calibrate: bool = setting(True, "clip Q(s, a~pi) from below by the Monte-Carlo return (Cal-QL; off: plain CQL)")
     with_lagrange: bool = setting(False, "tune the CQL weight with a Lagrange multiplier", flag="--lagrange")
@@ -44,23 +45,23 @@ class TrainConfig:
     tau: float = setting(0.005, "soft update rate of the target critics")
     log_every: int = setting(100, "steps between rows of metrics.csv")
     checkpoint_every: int = setting(1000, "steps between checkpoints")
-    gamma: float | None = setting(None, "the critic's discount (default: the annotation's)")
+    gamma: float | None = setting(0.995, "the critic's discount (None: the annotation's)")
     reward: Reward = setting(
-        "step",
+        "elegant",
         "step: penalise each violating step; segment: every step of a violating 25-frame window; "
         "elegant: 1 for an elegant success, the episode ending at its first violating window",
     )
-    chunk: int = setting(1, "actions per scored decision (the chunk length of the policy to judge)")
+    chunk: int = setting(8, "actions per scored decision (the chunk length of the policy to judge)")
     backup: Backup = setting(
-        "policy", "the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action)"
+        "dataset", "the TD target's next action: policy (a' ~ pi, Cal-QL's) or dataset (the demo's next action)"
     )
-    weight_decay: float = setting(0.0, "decoupled weight decay of the critics' weights (not the actor's)")
-    mc_weight: float = setting(0.0, "weight of Q's regression on the Monte-Carlo returns beside TD")
+    weight_decay: float = setting(0.1, "decoupled weight decay of the critics' weights (not the actor's)")
+    mc_weight: float = setting(10.0, "weight of Q's regression on the Monte-Carlo returns beside TD")
     value_loss: ValueLoss = setting(
-        "mse", "mse, or bce (with --reward elegant): logits fitted to the target probability by cross-entropy"
+        "bce", "mse, or bce (with --reward elegant): logits fitted to the target probability by cross-entropy"
     )
     explored_fraction: float = setting(
-        0.0, "share of each batch drawn from explored decisions (rollouts' explored_steps), e.g. 0.5"
+        0.0, "share of each batch drawn from explored decisions (rollouts' explored_steps); the recipe: 0.5"
     )
     bootstrap: int | None = setting(
         None,

@@ -27,7 +27,6 @@ from base_suites.runtime.migrations import added_later
 from base_suites.runtime.settings import check_derived, index_list, load_config, nested, setting, with_overrides
 from critics.config import TrainConfig
 from elegant.evaluation.config import EvalConfig, RolloutConfig
-from elegant.intervention.config import JITIConfig
 from elegant.policies.bc_config import BCConfig
 
 MODES = ("base", "always", "jiti")
@@ -48,7 +47,7 @@ class ChainConfig:
     demos: int = setting(50, "scripted demos per task")
     quality: str = setting("mixed", "the demos' execution quality (elegant demos --quality)")
     successful_only: bool = setting(True, "the policy clones only the demos that succeeded")
-    policy: BCConfig = nested(lambda: BCConfig(epochs=150, chunk=8, obs_noise=0.1), "policy-", derived=("seed",))
+    policy: BCConfig = nested(BCConfig, "policy-", derived=("seed",))
     critic_rollouts: int = setting(
         100,
         "rollouts per task of the trained policy added to the critic's data (0: demos only); they start "
@@ -60,32 +59,14 @@ class ChainConfig:
         derived=("episodes", "seed", "trust_radius", "init_states", "max_steps", "policy_act"),
     )
     critic: TrainConfig = nested(
-        lambda: TrainConfig(
-            steps=4000,
-            gamma=0.995,
-            cql_weight=0.2,
-            reward="elegant",
-            backup="dataset",
-            hidden=[64, 64],
-            weight_decay=0.1,
-            mc_weight=10.0,
-            value_loss="bce",
-            explored_fraction=0.5,
-        ),
-        "critic-",
-        derived=("paths", "seed", "chunk", "bootstrap"),
+        lambda: TrainConfig(explored_fraction=0.5), "critic-", derived=("paths", "seed", "chunk", "bootstrap")
     )
     critic_members: int = setting(
         3, "critics trained on bootstrap resamples of the data; JITI overrides only when all prefer it"
     )
     modes: tuple[str, ...] = setting(("base", "always", "jiti"), "the modes evaluated, e.g. base,jiti")
     evaluation: EvalConfig = nested(
-        lambda: EvalConfig(
-            episodes=50,
-            jiti=JITIConfig(
-                trust_radius=1.5, threshold=2.0, threshold_mode="std", window=4, trigger="drop", warmup="steer"
-            ),
-        ),
+        lambda: EvalConfig(episodes=50),
         "",
         derived=("seed", "init_states", "gate", "jiti.mode"),
     )
@@ -142,9 +123,9 @@ class ChainConfig:
         )
 
     def eval_config(self, mode: str, init_states: list[int] | None, gate: str | None = None) -> EvalConfig:
-        """How the chain evaluates `mode` from `init_states` (None: all), with `gate` in mode jiti. A base
-        run keeps JITI's defaults: it never intervenes, and its runs record no settings it did not use."""
-        jiti = JITIConfig(mode="base") if mode == "base" else replace(self.evaluation.jiti, mode=mode)
+        """How the chain evaluates `mode` from `init_states` (None: all), with `gate` in mode jiti; a run
+        records only the JITI settings its mode uses (a base run none)."""
+        jiti = replace(self.evaluation.jiti, mode=mode)
         starts = None if init_states is None else tuple(init_states)
         return replace(self.evaluation, seed=self.seed, init_states=starts, gate=gate, jiti=jiti)
 
@@ -231,11 +212,10 @@ def migrate_flat_record(record: dict[str, Any]) -> dict[str, Any]:
         for parent in parents:
             node = node.setdefault(parent, {})
         node[leaf] = value
-    # a format-1 chain's stages ran with the stage defaults of their day where it set nothing; those
-    # are today's defaults, not the chain's (whose defaults are now the recipe)
-    base = ChainConfig(
-        policy=BCConfig(), rollout=RolloutConfig(), critic=TrainConfig(), evaluation=EvalConfig(jiti=JITIConfig())
-    )
+    # a format-1 chain's stages ran with the stage defaults of their day where it set nothing; for every
+    # setting such a record can lack, those are today's stage defaults (the settings whose defaults became
+    # the recipe since are all in its record), not the chain's
+    base = ChainConfig(policy=BCConfig(), rollout=RolloutConfig(), critic=TrainConfig(), evaluation=EvalConfig())
     return with_overrides(base, nested_record, "chain.json").record()
 
 

@@ -265,8 +265,9 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     add_settings_arguments(p, BCConfig)
     p.add_argument(
         "--successful-only",
-        action="store_true",
-        help="train on the demos whose episode succeeded (as LIBERO's datasets hold)",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="train on the demos whose episode succeeded, as LIBERO's datasets hold (default: on)",
     )
     p.add_argument("--resume", action="store_true")
     _overwrite_arg(p)
@@ -420,18 +421,16 @@ def _serve_policy(args: argparse.Namespace) -> None:
 
 
 def _gate_args(p: argparse.ArgumentParser) -> None:
+    from base_suites.runtime.settings import add_settings_arguments
+    from elegant.intervention.gate import GateConfig
+
     p.add_argument("base_run", help="a base-mode run on validation starts (e.g. --init-states 0-24)")
     p.add_argument("jiti_run", help="the JITI run to judge, on the same starts")
     p.add_argument(
         "--always",
         help="an `always` run on the same starts: a task may then re-rank every decision where that did best",
     )
-    p.add_argument(
-        "--budget",
-        type=float,
-        help="with --always: the suite's interventions per episode at most this share of always's "
-        "(default: elegant.intervention.gate.INTERVENTION_BUDGET, 0.4)",
-    )
+    add_settings_arguments(p, GateConfig)
     p.add_argument("--out", required=True, help="gate file (JSON) for elegant eval --gate")
     _overwrite_arg(p)
 
@@ -441,9 +440,10 @@ def _gate_args(p: argparse.ArgumentParser) -> None:
     "choose per task base, JITI (or always) by what, on validation starts, made more episodes elegant than it spoiled",
 )(_gate_args)
 def _gate(args: argparse.Namespace) -> dict:
-    from elegant.intervention.gate import write_gate
+    from base_suites.runtime.settings import settings_from_args
+    from elegant.intervention.gate import GateConfig, write_gate
 
-    settings = {"overwrite": args.overwrite, **({} if args.budget is None else {"budget": args.budget})}
+    settings = {"overwrite": args.overwrite, **settings_from_args(args, GateConfig)}
     return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, **settings)
 
 

@@ -19,8 +19,25 @@ from test_critic_data import task_layout, write_annotated
 
 from base_suites.runtime.errors import UserInputError
 from critics import auroc, evaluate_critic, load, train_critic
+from critics.config import TrainConfig
 
-TINY = {"batch_size": 32, "hidden": (16, 16), "n_actions": 3, "progress": False}
+# tiny networks, and the Cal-QL these tests were written against (the defaults are the recipe's outcome
+# critic): per-step penalties backed up with the policy's action, at the annotation's gamma, one action per
+# decision; each test sets what it examines on top
+UNIT = TrainConfig(
+    batch_size=32,
+    hidden=[16, 16],
+    n_actions=3,
+    cql_weight=5.0,
+    gamma=None,
+    reward="step",
+    chunk=1,
+    backup="policy",
+    weight_decay=0.0,
+    mc_weight=0.0,
+    value_loss="mse",
+)
+TINY = {"config": UNIT, "progress": False}
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +121,7 @@ def test_resume_after_a_kill_equals_an_uninterrupted_run(annotated, tmp_path):
         import torch
         torch.set_num_threads(1)
         from critics import train_critic
+        from critics.config import TrainConfig
         train_critic([{annotated!r}], {killed!r}, steps=10**6, log_every=1, checkpoint_every=4, **{TINY!r})
     """)
     proc = subprocess.Popen([sys.executable, "-c", child], stderr=subprocess.PIPE)

@@ -15,10 +15,19 @@ import pytest
 
 from base_suites import UserInputError
 from elegant.evaluation.runner import episode_start, evaluate
+from elegant.intervention.config import MODE_SETTINGS
 
 pytestmark = pytest.mark.sim
 SUITE, TASK, STEPS = "libero_object", 0, 20
-JITI_SETTINGS = {"window": 3, "threshold": 0.02}
+# the JITI these runs were written against (the defaults are the recipe's); a run gets those its mode uses
+JITI_SETTINGS = {
+    "window": 3,
+    "threshold": 0.02,
+    "threshold_mode": "absolute",
+    "trigger": "deviation",
+    "warmup": "base",
+    "trust_radius": None,
+}
 TIMING = ("decision_time", "env_step_time")
 
 
@@ -36,7 +45,7 @@ class PlungePolicy:
 
 
 def run(out, mode="jiti", episodes=2, resume=False, **kw):
-    settings = {**JITI_SETTINGS, **kw}
+    settings = {**{k: v for k, v in JITI_SETTINGS.items() if k in MODE_SETTINGS[mode]}, **kw}
     return evaluate(
         SUITE,
         [TASK],
@@ -202,6 +211,12 @@ def test_bad_arguments_are_user_errors(tmp_path):
         evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, episodes=1)
     with pytest.raises(UserInputError, match="init states"):
         evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, init_states=[])
+    with pytest.raises(UserInputError, match=r"JITI threshold \(--threshold\) does nothing in mode 'base'"):
+        evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, threshold=3.0)
+    shapes = r"JITI n_candidates \(--candidates\) .* \(it shapes mode random, always, jiti\): leave it out"
+    with pytest.raises(UserInputError, match=shapes):
+        evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, n_candidates=8)
+    assert not (tmp_path / "config.json").exists()
     with pytest.raises(
         UserInputError, match="policy act 'sample' applies to a BC policy directory; a PlungePolicy decides its own"
     ):
@@ -214,8 +229,10 @@ def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(run
     config = json.loads((out / "config.json").read_text())
     assert config["policy_act"] == "mode"
     assert config["format"] == "libero-elegant-run/1"
-    del config["init_states"], config["jiti"]["chunk"], config["jiti"]["random_rate"], config["policy_act"]
+    assert "random_rate" not in config["jiti"]  # a jiti run records only the settings mode jiti uses
+    del config["init_states"], config["jiti"]["chunk"], config["policy_act"]
     del config["format"]  # runs from before the schema had none
+    config["jiti"]["random_rate"] = 0.3  # runs once recorded every JITI setting, used by their mode or not
     (out / "config.json").write_text(json.dumps(config))
     assert run(out, resume=True)["episodes"] == 2
 

@@ -135,11 +135,16 @@ def test_a_gate_holds_only_for_the_policy_critic_and_jiti_settings_it_validated(
     jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [1, 0]})
     with pytest.raises(UserInputError, match="field 'policy' is '/runs/other' but the base run .* has '/runs/policy'"):
         task_gate(base, write_run(tmp_path / "other_policy", "jiti", {"libero_goal/0": [1, 0]}, policy="/runs/other"))
-    steered_differently = write_run(
-        tmp_path / "always", "always", {"libero_goal/0": [1, 1]}, jiti={"window": 4, "warmup": "base"}
+    wider = write_run(
+        tmp_path / "always", "always", {"libero_goal/0": [1, 1]}, jiti={**AGENT["jiti"], "trust_radius": 0.5}
     )
-    with pytest.raises(UserInputError, match="always: field 'jiti.warmup' is 'base' but the JITI run .*'s is 'steer'"):
-        task_gate(base, jiti, steered_differently)
+    with pytest.raises(UserInputError, match="always: field 'jiti.trust_radius' is 0.5 but the JITI run .*'s is None"):
+        task_gate(base, jiti, wider)
+    # the warm-up shapes mode jiti only: an always run may have recorded another (runs once recorded every setting)
+    steered_differently = write_run(
+        tmp_path / "always2", "always", {"libero_goal/0": [1, 1]}, jiti={"window": 4, "warmup": "base"}
+    )
+    assert task_gate(base, jiti, steered_differently)["tasks"]["libero_goal/0"]["mode"] == "always"
     gate = write_gate(base, jiti, tmp_path / "gate.json")
     assert gate["agent"] == {**AGENT, "policy_act": "mode"}  # runs from before the field acted by the mode
     assert read_gate(tmp_path / "gate.json", "libero_goal", ["libero_goal/0"], [30], AGENT) == {"libero_goal/0": "jiti"}

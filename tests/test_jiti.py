@@ -8,9 +8,22 @@ import numpy as np
 import pytest
 
 from base_suites import UserInputError
+from elegant.intervention.config import JITIConfig
 from elegant.intervention.jiti import JITI, plan_distance
 
 META = {"suite": "libero_object", "task_index": 0, "state_layout": [["t", 1]]}
+# The settings these unit tests were written against (JITI's defaults are the recipe's): the deviation
+# trigger on an absolute threshold, a base warm-up of 10 decisions and no trust radius; each test sets what it
+# examines on top.
+UNIT = JITIConfig(
+    window=10, threshold=1.0, threshold_mode="absolute", trigger="deviation", warmup="base", trust_radius=None
+)
+
+
+def make_jiti(policy, critic, config=UNIT, **settings):
+    return JITI(policy, critic, config, **settings)
+
+
 BASE = np.array([0.0, 0.1, -0.2, 0.0, 0.0, 0.0, -1.0])
 
 
@@ -54,7 +67,7 @@ def rollout(jiti, steps):
 
 
 def test_no_intervention_when_q_is_flat():
-    jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 30), window=10, threshold=0.5)
+    jiti = make_jiti(SamplingPolicy(), ScriptedCritic([5.0] * 30), window=10, threshold=0.5)
     actions = rollout(jiti, 30)
     assert jiti.interventions == 0
     assert all(np.array_equal(a, BASE) for a in actions)
@@ -65,7 +78,7 @@ def test_intervention_on_a_jump_executes_the_argmax_and_feeds_its_q_to_the_windo
     q = [5.0] * 30
     q[15] = 8.0
     policy, critic = SamplingPolicy(), ScriptedCritic(q)
-    jiti = JITI(policy, critic, window=10, threshold=0.5, n_candidates=16)
+    jiti = make_jiti(policy, critic, window=10, threshold=0.5, n_candidates=16)
     actions = rollout(jiti, 30)
     assert [d.step for d in jiti.log if d.intervened] == [15]
     d = jiti.log[15]
@@ -82,7 +95,7 @@ def test_intervention_on_a_jump_executes_the_argmax_and_feeds_its_q_to_the_windo
 def test_warm_up_never_intervenes_before_the_window_is_full():
     q = [5.0] * 14
     q[3] = 50.0
-    jiti = JITI(SamplingPolicy(), ScriptedCritic(q), window=10, threshold=0.5)
+    jiti = make_jiti(SamplingPolicy(), ScriptedCritic(q), window=10, threshold=0.5)
     rollout(jiti, 14)
     assert all(d.mean is None and d.dq is None and not d.intervened for d in jiti.log[:10])
     assert jiti.log[10].mean == pytest.approx((9 * 5 + 50) / 10)
@@ -91,17 +104,17 @@ def test_warm_up_never_intervenes_before_the_window_is_full():
 
 def test_threshold_in_units_of_the_window_std():
     q = [4.0, 6.0] * 5 + [7.0, 7.5]  # window mean 5, std 1
-    jiti = JITI(SamplingPolicy(), ScriptedCritic(q), window=10, threshold=2.0, threshold_mode="std")
+    jiti = make_jiti(SamplingPolicy(), ScriptedCritic(q), window=10, threshold=2.0, threshold_mode="std")
     rollout(jiti, 11)
     d = jiti.log[10]
     assert d.std == pytest.approx(1.0) and d.tau == pytest.approx(2.0) and d.dq == pytest.approx(2.0)
     assert not d.intervened  # dq <= tau keeps the base action
     q2 = [4.0, 6.0] * 5 + [7.5]
-    jiti2 = JITI(SamplingPolicy(), ScriptedCritic(q2), window=10, threshold=2.0, threshold_mode="std")
+    jiti2 = make_jiti(SamplingPolicy(), ScriptedCritic(q2), window=10, threshold=2.0, threshold_mode="std")
     rollout(jiti2, 11)
     assert jiti2.log[10].intervened
     # the same deviation is not critical for an absolute threshold of 3
-    jiti3 = JITI(SamplingPolicy(), ScriptedCritic(q2), window=10, threshold=3.0)
+    jiti3 = make_jiti(SamplingPolicy(), ScriptedCritic(q2), window=10, threshold=3.0)
     rollout(jiti3, 11)
     assert not jiti3.log[10].intervened and jiti3.log[10].tau == 3.0
 
@@ -110,10 +123,10 @@ def test_the_drop_trigger_ignores_a_climbing_q_and_fires_on_a_fall():
     """A value that climbs as the task progresses leaves every score above the lagging mean: the symmetric
     deviation fires all along the climb, the one-sided drop trigger only where q falls below the mean."""
     climb = [float(t) for t in range(12)] + [3.0]
-    deviation = JITI(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0)
+    deviation = make_jiti(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0)
     rollout(deviation, 13)
     assert [d.step for d in deviation.log if d.intervened] == [4, 5, 6, 7, 8, 9, 10, 11, 12]
-    drop = JITI(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0, trigger="drop")
+    drop = make_jiti(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0, trigger="drop")
     rollout(drop, 13)
     assert [d.step for d in drop.log if d.intervened] == [12]  # 3 after a window of 8-11: the fall
     assert drop.log[12].dq == pytest.approx(abs(3.0 - drop.log[12].mean)) and drop.config()["trigger"] == "drop"
@@ -121,7 +134,7 @@ def test_the_drop_trigger_ignores_a_climbing_q_and_fires_on_a_fall():
 
 def test_mode_always_reselects_every_step_and_base_wins_ties():
     policy, critic = SamplingPolicy(), ScriptedCritic([1.0] * 12)
-    jiti = JITI(policy, critic, window=10, mode="always", n_candidates=4)
+    jiti = make_jiti(policy, critic, window=10, mode="always", n_candidates=4)
     actions = rollout(jiti, 12)
     assert jiti.interventions == 12 and policy.samples == 12
     assert all(len(b) == 4 and np.array_equal(b[0], BASE) for b in critic.batches)
@@ -131,25 +144,26 @@ def test_mode_always_reselects_every_step_and_base_wins_ties():
         def q(self, state, actions):
             return np.zeros(len(actions))
 
-    tied = JITI(SamplingPolicy(), FlatCritic([]), mode="always", n_candidates=4)
+    tied = make_jiti(SamplingPolicy(), FlatCritic([]), mode="always", n_candidates=4)
     acts = rollout(tied, 3)
     assert all(d.chosen == 0 for d in tied.log) and all(np.array_equal(a, BASE) for a in acts)
 
 
-def test_mode_base_never_intervenes_but_logs_q():
+def test_mode_base_never_intervenes_but_logs_q_without_window_statistics():
     q = [5.0] * 20
     q[12] = 100.0
     policy = SamplingPolicy()
-    jiti = JITI(policy, ScriptedCritic(q), mode="base")
+    jiti = make_jiti(policy, ScriptedCritic(q), mode="base")
     actions = rollout(jiti, 20)
     assert jiti.interventions == 0 and policy.samples == 0
-    assert [d.q for d in jiti.log] == q and jiti.log[12].dq == pytest.approx(95.0)
+    # a base run records no window settings, so it logs no statistics of a window
+    assert [d.q for d in jiti.log] == q and all(d.mean is None and d.dq is None and d.tau is None for d in jiti.log)
     assert all(np.array_equal(a, BASE) for a in actions)
-    without = JITI(policy, None, mode="base")
+    without = make_jiti(policy, None, mode="base")
     rollout(without, 3)
     assert [d.q for d in without.log] == [None] * 3
     with pytest.raises(UserInputError, match="needs a critic"):
-        JITI(policy, None, mode="jiti")
+        make_jiti(policy, None, mode="jiti")
 
 
 def test_perturbation_fallback_for_plain_callables_is_clipped_and_seeded():
@@ -160,7 +174,7 @@ def test_perturbation_fallback_for_plain_callables_is_clipped_and_seeded():
 
     def run(seed):
         critic = ScriptedCritic([0.0] * 5)
-        jiti = JITI(plain, critic, mode="always", n_candidates=8, noise_scale=0.5)
+        jiti = make_jiti(plain, critic, mode="always", n_candidates=8, noise_scale=0.5)
         jiti.reset(META, seed=seed)
         for t in range(5):
             jiti({"state": np.array([float(t)])})
@@ -175,7 +189,7 @@ def test_perturbation_fallback_for_plain_callables_is_clipped_and_seeded():
 
 def test_reset_forwards_to_policy_binds_critic_and_clears_window():
     policy, critic = SamplingPolicy(), ScriptedCritic([5.0] * 12)
-    jiti = JITI(policy, critic, window=10)
+    jiti = make_jiti(policy, critic, window=10)
     rollout(jiti, 12)
     jiti.reset(META, seed=7)
     assert policy.resets[-1] == (META, 7) and critic.bound[-1] is META
@@ -185,7 +199,7 @@ def test_reset_forwards_to_policy_binds_critic_and_clears_window():
 
 
 def test_trace_has_one_column_per_field_and_one_row_per_step():
-    jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), window=2)
+    jiti = make_jiti(SamplingPolicy(), ScriptedCritic([5.0] * 4), window=2)
     rollout(jiti, 4)
     trace = jiti.trace()
     assert set(trace) >= {
@@ -222,11 +236,11 @@ def test_trace_has_one_column_per_field_and_one_row_per_step():
 )
 def test_bad_settings_are_user_errors(kwargs, message):
     with pytest.raises(UserInputError, match=message):
-        JITI(SamplingPolicy(), ScriptedCritic([]), **kwargs)
+        make_jiti(SamplingPolicy(), ScriptedCritic([]), **kwargs)
 
 
 def test_missing_state_observation_is_a_user_error():
-    jiti = JITI(SamplingPolicy(), ScriptedCritic([0.0]))
+    jiti = make_jiti(SamplingPolicy(), ScriptedCritic([0.0]))
     jiti.reset(META)
     with pytest.raises(UserInputError, match="'state'"):
         jiti({"agentview": np.zeros((2, 2, 3))})
@@ -240,7 +254,7 @@ def test_intervened_steps_log_every_candidate_score_and_the_action_change():
         def q(self, state, actions):
             return np.asarray(actions)[:, 0]  # prefers a large first action dimension
 
-    jiti = JITI(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8)
+    jiti = make_jiti(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8)
     rollout(jiti, 3)
     trace = jiti.trace()
     assert trace["intervened"] == [True, True, True]
@@ -259,25 +273,25 @@ def test_trust_radius_keeps_far_candidates_out_of_the_choice():
         def q(self, state, actions):
             return np.asarray(actions)[:, 0]
 
-    free = JITI(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8, seed=1)
-    near = JITI(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8, seed=1, trust_radius=1e-9)
+    free = make_jiti(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8, seed=1)
+    near = make_jiti(SamplingPolicy(), PreferPositive(), mode="always", n_candidates=8, seed=1, trust_radius=1e-9)
     rollout(free, 3), rollout(near, 3)
     assert all(d.chosen == 0 and d.action_change == 0.0 for d in near.log)  # only the base action is near enough
     assert any(d.chosen != 0 for d in free.log)
     with pytest.raises(UserInputError, match="trust_radius"):
-        JITI(SamplingPolicy(), PreferPositive(), trust_radius=0.0)
+        make_jiti(SamplingPolicy(), PreferPositive(), trust_radius=0.0)
 
 
 def test_min_gain_keeps_the_base_action_unless_the_best_candidate_beats_it_by_more():
     # candidates score base_q + k / 100: the best of 16 gains 0.15 over the base action
-    small = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), mode="always", min_gain=0.1)
-    large = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4), mode="always", min_gain=0.2)
+    small = make_jiti(SamplingPolicy(), ScriptedCritic([5.0] * 4), mode="always", min_gain=0.1)
+    large = make_jiti(SamplingPolicy(), ScriptedCritic([5.0] * 4), mode="always", min_gain=0.2)
     rollout(small, 4), rollout(large, 4)
     assert [d.chosen for d in small.log] == [15] * 4
     assert [d.chosen for d in large.log] == [0] * 4 and all(d.chosen_q == 5.0 for d in large.log)
     assert large.config()["min_gain"] == 0.2
     with pytest.raises(UserInputError, match="min_gain"):
-        JITI(SamplingPolicy(), ScriptedCritic([]), min_gain=-0.1)
+        make_jiti(SamplingPolicy(), ScriptedCritic([]), min_gain=-0.1)
 
 
 class TiltedCritic(ScriptedCritic):
@@ -298,18 +312,18 @@ def test_an_ensemble_overrides_only_with_every_members_agreement_and_picks_the_b
 
     # both members prefer higher a[0] (the second member half as much, with a bump at candidate 3): best mean is 15
     agree = CriticEnsemble([TiltedCritic([5.0] * 3, 1.0), TiltedCritic([7.0] * 3, 0.5, bumped=3, bump=0.05)])
-    jiti = JITI(SamplingPolicy(), agree, mode="always")
+    jiti = make_jiti(SamplingPolicy(), agree, mode="always")
     rollout(jiti, 3)
     assert [d.chosen for d in jiti.log] == [15] * 3
     assert jiti.log[0].q == pytest.approx(6.0) and jiti.log[0].chosen_q == pytest.approx(6.0 + 0.75 * 0.15)
     # one member prefers lower a[0] except for a bump at candidate 3: only candidate 3 has both votes
     split = CriticEnsemble([TiltedCritic([5.0] * 3, 1.0), TiltedCritic([5.0] * 3, -1.0, bumped=3, bump=0.5)])
-    jiti = JITI(SamplingPolicy(), split, mode="always")
+    jiti = make_jiti(SamplingPolicy(), split, mode="always")
     rollout(jiti, 3)
     assert [d.chosen for d in jiti.log] == [3] * 3
     # without the bump no candidate has both votes: the base action stays, though the mean is flat
     against = CriticEnsemble([TiltedCritic([5.0] * 3, 1.0), TiltedCritic([5.0] * 3, -1.0)])
-    jiti = JITI(SamplingPolicy(), against, mode="always")
+    jiti = make_jiti(SamplingPolicy(), against, mode="always")
     rollout(jiti, 3)
     assert [d.chosen for d in jiti.log] == [0] * 3 and jiti.log[0].candidate_q == [5.0] * 16
 
@@ -318,17 +332,17 @@ def test_max_overrides_stops_intervening_once_the_episode_spent_its_budget():
     """Only executed alternatives count: interventions that keep the base plan do not spend the budget,
     and a new episode starts with a full one."""
     climb = [float(t) for t in range(12)] + [3.0]  # the deviation trigger fires at decisions 4 to 12
-    capped = JITI(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0, max_overrides=3)
+    capped = make_jiti(SamplingPolicy(), ScriptedCritic(climb), window=4, threshold=1.0, max_overrides=3)
     for _ in range(2):
         rollout(capped, 13)
         assert [d.step for d in capped.log if d.intervened] == [4, 5, 6] and capped.overrides == 3
         assert all(d.chosen == 15 for d in capped.log if d.intervened)
-    kept = JITI(SamplingPolicy(), TiltedCritic(climb, -1.0), window=4, threshold=1.0, max_overrides=3)
+    kept = make_jiti(SamplingPolicy(), TiltedCritic(climb, -1.0), window=4, threshold=1.0, max_overrides=3)
     rollout(kept, 13)  # every candidate scores below the base plan: it stays, and nothing is spent
     assert [d.step for d in kept.log if d.intervened] == list(range(4, 13)) and kept.overrides == 0
     assert capped.config()["max_overrides"] == 3
     with pytest.raises(UserInputError, match="max_overrides"):
-        JITI(SamplingPolicy(), ScriptedCritic([]), max_overrides=-1)
+        make_jiti(SamplingPolicy(), ScriptedCritic([]), max_overrides=-1)
 
 
 def test_an_ensemble_refuses_a_single_member_or_mixed_chunk_lengths():
@@ -385,7 +399,7 @@ class ChunkCritic(ScriptedCritic):
 
 def test_a_chunked_policy_is_decided_once_per_chunk_and_observed_in_between():
     policy = ChunkPolicy()
-    jiti = JITI(policy, ChunkCritic([5.0] * 12), window=3, threshold=0.5)
+    jiti = make_jiti(policy, ChunkCritic([5.0] * 12), window=3, threshold=0.5)
     actions = rollout(jiti, 12)
     assert policy.planned == [0, 3, 6, 9] and policy.observed == [1, 2, 4, 5, 7, 8, 10, 11]
     assert [d.step for d in jiti.log] == [0, 3, 6, 9] and jiti.interventions == 0
@@ -396,7 +410,7 @@ def test_a_chunked_policy_is_decided_once_per_chunk_and_observed_in_between():
 def test_an_intervention_replaces_the_whole_chunk():
     q = [5.0] * 12
     q[9] = 8.0  # the jump is seen at the decision of step 9
-    jiti = JITI(ChunkPolicy(), ChunkCritic(q), window=3, threshold=0.5, n_candidates=16)
+    jiti = make_jiti(ChunkPolicy(), ChunkCritic(q), window=3, threshold=0.5, n_candidates=16)
     actions = rollout(jiti, 12)
     assert [d.step for d in jiti.log if d.intervened] == [9]
     assert jiti.log[-1].chosen == 15 and jiti.log[-1].action_change == pytest.approx(0.15)
@@ -407,9 +421,9 @@ def test_an_intervention_replaces_the_whole_chunk():
 
 def test_a_critic_of_another_chunk_length_is_refused():
     with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 3.*--chunk 3"):
-        JITI(ChunkPolicy(), ScriptedCritic([5.0]))
+        make_jiti(ChunkPolicy(), ScriptedCritic([5.0]))
     with pytest.raises(UserInputError, match="chunks of 3 actions but the policy decides 1"):
-        JITI(SamplingPolicy(), ChunkCritic([5.0]))
+        make_jiti(SamplingPolicy(), ChunkCritic([5.0]))
 
 
 def test_plan_distance_is_the_rms_over_the_chunk_of_the_per_step_distance():
@@ -422,23 +436,25 @@ def test_plan_distance_is_the_rms_over_the_chunk_of_the_per_step_distance():
 
 def test_mode_random_intervenes_at_the_requested_rate_with_eligible_candidates_only():
     policy = SamplingPolicy()  # candidate k has a[0] = k / 100: candidates 1..10 lie within 0.1 of the base
-    jiti = JITI(policy, None, mode="random", random_rate=0.3, trust_radius=0.1, n_candidates=16, seed=5)
+    jiti = make_jiti(policy, None, mode="random", random_rate=0.3, trust_radius=0.1, n_candidates=16, seed=5)
     actions = rollout(jiti, 400)
     hit = [d for d in jiti.log if d.intervened]
     assert 0.2 < len(hit) / 400 < 0.4 and all(d.q is None and d.candidate_q is None for d in jiti.log)
     assert {d.chosen for d in hit} == set(range(1, 11))  # never the base, never beyond the trust radius
     assert all(actions[d.step][0] == pytest.approx(d.chosen / 100.0) for d in hit)
-    again = JITI(SamplingPolicy(), None, mode="random", random_rate=0.3, trust_radius=0.1, n_candidates=16, seed=5)
+    again = make_jiti(SamplingPolicy(), None, mode="random", random_rate=0.3, trust_radius=0.1, n_candidates=16, seed=5)
     assert [a.tolist() for a in rollout(again, 400)] == [a.tolist() for a in actions]  # seeded
-    scored = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 400), mode="random", random_rate=0.3, seed=5)
+    scored = make_jiti(SamplingPolicy(), ScriptedCritic([5.0] * 400), mode="random", random_rate=0.3, seed=5)
     rollout(scored, 400)
     assert all(d.q == 5.0 for d in scored.log) and all(len(d.candidate_q) == 16 for d in scored.log if d.intervened)
     with pytest.raises(UserInputError, match="random_rate"):
-        JITI(SamplingPolicy(), None, mode="random", random_rate=1.5)
+        make_jiti(SamplingPolicy(), None, mode="random", random_rate=1.5)
 
 
 def test_mode_random_with_random_steps_intervenes_exactly_there():
-    jiti = JITI(ChunkPolicy(), None, mode="random", random_rate=1.0, random_steps=[3, 7, 9], n_candidates=16, seed=5)
+    jiti = make_jiti(
+        ChunkPolicy(), None, mode="random", random_rate=1.0, random_steps=[3, 7, 9], n_candidates=16, seed=5
+    )
     rollout(jiti, 12)
     # decisions come every 3 steps: step 7 lies inside a chunk and is no decision, so never explored
     assert [d.step for d in jiti.log if d.intervened] == [3, 9] and all(d.chosen != 0 for d in jiti.log if d.intervened)
@@ -458,37 +474,37 @@ def test_a_steered_warmup_reselects_the_decisions_before_the_window_is_full_and_
     The chosen candidates' scores fill the window, so the reference is the steered trajectory's level."""
     q = [5.0] * 20
     q[12] = 1.0  # a drop: critical at decision 12 either way
-    steered = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop", warmup="steer")
+    steered = make_jiti(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop", warmup="steer")
     actions = rollout(steered, 20)
     assert [d.step for d in steered.log if d.intervened] == [0, 1, 2, 3, 12]
     assert [d.chosen for d in steered.log[:4]] == [15] * 4 and actions[0][0] == pytest.approx(0.15)
     assert steered.log[4].mean == pytest.approx(5.15) and steered.config()["warmup"] == "steer"
-    plain = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop")
+    plain = make_jiti(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop")
     rollout(plain, 20)
     assert [d.step for d in plain.log if d.intervened] == [12] and plain.config()["warmup"] == "base"
     # the override budget bounds the steered warm-up too, and modes other than jiti ignore the setting
-    capped = JITI(
+    capped = make_jiti(
         SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="drop", warmup="steer", max_overrides=2
     )
     rollout(capped, 20)
     assert [d.step for d in capped.log if d.intervened] == [0, 1]
-    base = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, mode="base", warmup="steer")
+    base = make_jiti(SamplingPolicy(), ScriptedCritic(q), window=4, mode="base", warmup="steer")
     rollout(base, 20)
     assert base.interventions == 0
     with pytest.raises(UserInputError, match="warmup"):
-        JITI(SamplingPolicy(), ScriptedCritic([]), warmup="always")
+        make_jiti(SamplingPolicy(), ScriptedCritic([]), warmup="always")
 
 
 def test_trigger_none_steers_only_the_warmup_and_refuses_to_run_as_a_silent_base_policy():
     q = [5.0] * 20
     q[12] = -50.0  # a drop any threshold would call critical
-    warm_only = JITI(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="none", warmup="steer")
+    warm_only = make_jiti(SamplingPolicy(), ScriptedCritic(q), window=4, threshold=1.0, trigger="none", warmup="steer")
     rollout(warm_only, 20)
     assert [d.step for d in warm_only.log if d.intervened] == [0, 1, 2, 3]
     assert warm_only.log[12].q == pytest.approx(-50.0) and warm_only.log[12].chosen == 0
     with pytest.raises(UserInputError, match="trigger 'none' never intervenes"):
-        JITI(SamplingPolicy(), ScriptedCritic(q), trigger="none")
-    JITI(SamplingPolicy(), ScriptedCritic(q), trigger="none", mode="always")  # other modes ignore the trigger
+        make_jiti(SamplingPolicy(), ScriptedCritic(q), trigger="none")
+    make_jiti(SamplingPolicy(), ScriptedCritic(q), trigger="none", mode="always")  # other modes ignore the trigger
 
 
 class FreshSamplesPolicy:
@@ -557,7 +573,7 @@ def test_the_base_plan_is_always_candidate_zero_even_when_the_policy_never_sampl
     policy = ChunkedFreshSamplesPolicy() if chunked else FreshSamplesPolicy()
     chunk = 3 if chunked else 1
     critic = PrefersBaseCritic(chunk)
-    jiti = JITI(policy, critic, mode="always", n_candidates=8)
+    jiti = make_jiti(policy, critic, mode="always", n_candidates=8)
     actions = rollout(jiti, 4 * chunk)
     assert len(critic.batches) == 4 and all(len(b) == 8 for b in critic.batches)
     for batch in critic.batches:  # every scored batch holds the full candidate set, the base plan first
@@ -566,7 +582,7 @@ def test_the_base_plan_is_always_candidate_zero_even_when_the_policy_never_sampl
     assert all(np.array_equal(a, BASE) for a in actions)
     assert [d.chosen for d in jiti.log] == [0] * 4 and jiti.overrides == 0
     # mode "jiti" with a steered warm-up re-ranks its first decisions the same way
-    steered = JITI(policy, PrefersBaseCritic(chunk), window=2, trigger="none", warmup="steer", n_candidates=8)
+    steered = make_jiti(policy, PrefersBaseCritic(chunk), window=2, trigger="none", warmup="steer", n_candidates=8)
     actions = rollout(steered, 2 * chunk)
     assert [d.intervened for d in steered.log] == [True, True] and [d.chosen for d in steered.log] == [0, 0]
     assert all(np.array_equal(a, BASE) for a in actions)
@@ -577,7 +593,7 @@ def test_a_deviation_equal_to_an_absolute_threshold_is_not_critical(trigger):
     """dq > tau is critical, dq == tau is not, for either trigger (the drop trigger reads a fall)."""
     sign = 1.0 if trigger == "deviation" else -1.0
     for last, critical in ((5.0 + sign * 1.0, False), (5.0 + sign * 1.25, True)):
-        jiti = JITI(SamplingPolicy(), ScriptedCritic([5.0] * 4 + [last]), window=4, threshold=1.0, trigger=trigger)
+        jiti = make_jiti(SamplingPolicy(), ScriptedCritic([5.0] * 4 + [last]), window=4, threshold=1.0, trigger=trigger)
         rollout(jiti, 5)
         d = jiti.log[4]
         assert d.tau == 1.0 and d.dq == pytest.approx(abs(last - 5.0)) and d.intervened is critical

@@ -21,18 +21,34 @@ from elegant.policies.bc_config import BCConfig
 
 pytestmark = pytest.mark.sim
 
+# tiny sizes, and the stages these tests were written against (the defaults are the recipe's): a per-step
+# policy without input noise, a Cal-QL critic on window penalties, JITI's deviation trigger
 TINY = ChainConfig(
     suites=("libero_object",),
     tasks=(0,),
     demos=2,
     successful_only=False,
-    policy=BCConfig(epochs=1),
+    policy=BCConfig(epochs=1, chunk=1, obs_noise=0.0),
     critic_rollouts=0,
-    critic=TrainConfig(steps=20, gamma=0.9, cql_weight=0.2, reward="segment"),
+    critic=TrainConfig(
+        steps=20,
+        gamma=0.9,
+        cql_weight=0.2,
+        reward="segment",
+        backup="policy",
+        hidden=[256, 256],
+        weight_decay=0.0,
+        mc_weight=0.0,
+        value_loss="mse",
+    ),
     critic_members=1,
     modes=("base", "jiti"),
     evaluation=EvalConfig(
-        episodes=1, max_steps=15, jiti=JITIConfig(trust_radius=0.3, threshold=2.0, threshold_mode="std")
+        episodes=1,
+        max_steps=15,
+        jiti=JITIConfig(
+            trust_radius=0.3, threshold=2.0, threshold_mode="std", window=10, trigger="deviation", warmup="base"
+        ),
     ),
     jiti_gate=False,
 )

@@ -12,6 +12,7 @@ import torch
 from annotations import Demo, DemoWriter
 from base_suites.runtime.errors import UserInputError
 from elegant.policies import BCPolicy, Policy, as_policy, load_policy, train_policy
+from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import load_demos
 
 torch.set_num_threads(1)
@@ -21,7 +22,12 @@ LAYOUTS = {
     "libero_object/1": [["robot0_eef_pos", 3], ["robot0_gripper_qpos", 2]],
 }
 GOALS = {"libero_object/0": np.array([0.3, -0.2, 0.1]), "libero_object/1": np.array([-0.3, 0.2, 0.3])}
-SMALL = {"history": 2, "batch_size": 32, "hidden": (64, 64), "modes": 3, "progress": False}
+# a small network acting one step at a time without input noise (the defaults are the recipe's chunked,
+# noise-trained policy); each test sets what it examines on top
+SMALL = {
+    "config": BCConfig(history=2, batch_size=32, hidden=(64, 64), modes=3, chunk=1, obs_noise=0.0),
+    "progress": False,
+}
 
 
 def expert(state: np.ndarray, key: str) -> np.ndarray:
@@ -475,11 +481,13 @@ def test_successful_only_clones_the_successes_and_a_resume_must_agree(tmp_path):
     assert len(load_demos([path]).episodes) == 8
     assert len(load_demos([path], successful_only=True).episodes) == 6
     out = str(tmp_path / "policy")
-    summary = train_policy([path], out, epochs=1, successful_only=True, **SMALL)
+    summary = train_policy([path], out, epochs=1, **SMALL)  # the default, as LIBERO's datasets hold
     assert summary["num_demos"] == 6
     assert json.load(open(os.path.join(out, "config.json")))["training"]["successful_only"] is True
     with pytest.raises(UserInputError, match="cannot resume"):
-        train_policy([path], out, epochs=1, resume=True, **SMALL)
+        train_policy([path], out, epochs=1, resume=True, successful_only=False, **SMALL)
+    every = train_policy([path], str(tmp_path / "every"), epochs=1, successful_only=False, **SMALL)
+    assert every["num_demos"] == 8
 
 
 def test_evaluation_agents_act_as_asked_in_every_worker(policy_dir):

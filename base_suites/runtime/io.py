@@ -71,19 +71,8 @@ def changed_fields(
     """(key, stored value, this run's value) for each setting in which a run directory's stored record
     `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
     by key (a nested setting as 'outer.inner'); a resume refuses any of them (every resumable command
-    compares settings this one way).
-    `added`: settings introduced after some records were written, with the value that reproduces what
-    those records' runs did; a record without the key counts as having that value. A dict value names
-    settings added inside a nested record (e.g. {"jiti": {"chunk": 1}}), filled in the same way; the
-    project's table of them is `base_suites.runtime.migrations`."""
-    old = dict(old) if isinstance(old, dict) else {}
-    for key, value in (added or {}).items():
-        if isinstance(value, dict) and isinstance(old.get(key), dict):
-            now = new.get(key) if isinstance(new.get(key), dict) else {}
-            filled = {k: now.get(k) if v == SAME_AS_NOW else v for k, v in value.items()}
-            old[key] = {**filled, **old[key]}
-        else:
-            old.setdefault(key, new.get(key) if value == SAME_AS_NOW else value)
+    compares settings this one way). `added`: as `with_added_settings` fills in."""
+    old = with_added_settings(old, new, added)
     changed = []
     for k in sorted(set(old) | set(new)):
         if k in ignore or old.get(k) == new.get(k):
@@ -93,6 +82,23 @@ def changed_fields(
         else:
             changed.append((k, old.get(k), new.get(k)))
     return changed
+
+
+def with_added_settings(old: Any, new: dict, added: dict | None) -> dict:
+    """A stored record `old` (anything but an object counts as empty) with the settings `added` after it
+    was written filled in: each with the value that reproduces what that record's run did, so a record
+    without the key counts as having that value. A dict value names settings added inside a nested record
+    (e.g. {"jiti": {"chunk": 1}}), filled in the same way; `SAME_AS_NOW` takes `new`'s value. The
+    project's table of them is `base_suites.runtime.migrations`."""
+    old = dict(old) if isinstance(old, dict) else {}
+    for key, value in (added or {}).items():
+        if isinstance(value, dict) and isinstance(old.get(key), dict):
+            now = new.get(key) if isinstance(new.get(key), dict) else {}
+            filled = {k: now.get(k) if v == SAME_AS_NOW else v for k, v in value.items()}
+            old[key] = {**filled, **old[key]}
+        else:
+            old.setdefault(key, new.get(key) if value == SAME_AS_NOW else value)
+    return old
 
 
 def library_versions() -> dict[str, str]:

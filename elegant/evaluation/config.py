@@ -74,11 +74,14 @@ class EvalConfig:
 
     def with_settings(self, **settings: Any) -> EvalConfig:
         """This config with `settings` replaced: names of `EvalConfig` fields or of `JITIConfig` fields
-        (mode, window, ...); any other name is refused in one line."""
+        (mode, window, ...); any other name, and a JITI setting the run's mode does not use, is refused in
+        one line."""
         jiti_names = set(JITIConfig.settings())
         jiti = {k: v for k, v in settings.items() if k in jiti_names}
         mine = {k: v for k, v in settings.items() if k not in jiti_names}
-        return with_overrides(self, {**mine, **({"jiti": jiti} if jiti else {})}, "evaluation")
+        config = with_overrides(self, {**mine, **({"jiti": jiti} if jiti else {})}, "evaluation")
+        config.jiti.refuse_unused(jiti)
+        return config
 
 
 @dataclass(frozen=True)

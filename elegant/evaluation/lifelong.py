@@ -81,6 +81,12 @@ class _Run:
         return str(self.out / "stages" / f"task_{k}")
 
 
+def stage_policy_config(epochs: int, seed: int, modes: int) -> BCConfig:
+    """The policy every stage trains: LIBERO's lifelong protocol clones one action per step, without input
+    noise (the chunked, noise-trained policy of JITI's recipe is another experiment)."""
+    return BCConfig(epochs=epochs, seed=seed, modes=modes, chunk=1, obs_noise=0.0)
+
+
 def train_stage_sequential(run: _Run, k: int) -> None:
     """SeqL: fine-tune the network kept after task k-1 on task k's demos (task 0 starts from a fresh
     network over the features of all K tasks); snapshots at the evaluation epochs."""
@@ -89,8 +95,9 @@ def train_stage_sequential(run: _Run, k: int) -> None:
     train_policy(
         run.paths,
         run.stage_dir(k),
-        BCConfig(epochs=cfg["epochs"], seed=cfg["seed"], modes=cfg["modes"]),
+        stage_policy_config(cfg["epochs"], cfg["seed"], cfg["modes"]),
         fine_tuning=FineTuning(tasks=[cfg["task_keys"][k]], snapshot_epochs=cfg["eval_epochs"], **start),
+        successful_only=False,
         resume=True,
         progress=False,
         on_epoch_end=lambda info: run.status(
@@ -218,7 +225,7 @@ def run_lifelong(
         raise UserInputError("lifelong: expected a non-empty list of demo files")
     paths = [os.fspath(p) for p in demo_paths]
     data = select_tasks(load_demos(paths), keys)
-    defaults = BCConfig(epochs=epochs, seed=seed, modes=modes)
+    defaults = stage_policy_config(epochs, seed, modes)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
     config = {
         "format": LIFELONG_FORMAT,

@@ -36,7 +36,7 @@ from tqdm import tqdm
 from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
 from base_suites.rollout import run_episode
-from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
+from base_suites.runtime.io import atomic_write, changed_fields, read_json_file, with_added_settings
 from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
@@ -45,6 +45,7 @@ from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import EvalConfig
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import summarize
+from elegant.intervention.config import mode_record
 from elegant.intervention.jiti import JITI
 from elegant.policies.specs import describe_policy, open_policy
 from elegant.reporting.report import write_run_report
@@ -118,10 +119,12 @@ def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
     if not path.exists() and (out / "episodes.jsonl").exists():
         raise UserInputError(f"{out} holds episodes.jsonl without config.json; choose another directory")
     if path.exists():
-        stored = read_json_file(path, "run config")
-        changed = changed_fields(stored, config, ignore=("episodes",), added=added_later("eval run"))
-        if changed:
-            key, before, now = changed[0]
+        stored = with_added_settings(read_json_file(path, "run config"), config, added_later("eval run"))
+        if isinstance(stored.get("jiti"), dict):  # runs once recorded every JITI setting, used or not
+            stored["jiti"] = mode_record(stored["jiti"], stored.get("mode"))
+        changed = changed_fields(stored, config, ignore=("episodes",))
+        if changed:  # another mode is named first: it explains the settings that differ with it
+            key, before, now = next((c for c in changed if c[0] == "mode"), changed[0])
             raise UserInputError(
                 f"{path}: field {key!r} is {before!r} but this run has {now!r}; "
                 "resume only with the same settings (only episodes may change)"

@@ -1,12 +1,15 @@
 """JITI's settings: one frozen dataclass, each setting declared once with its reason (docs/design.md, JITI).
 
-The evaluation runner, the CLI and the chain take their JITI settings from these fields; run configs
-record `JITIConfig.record()`. A mode is a preset of a trigger (when to draw and re-rank candidates,
-`elegant.intervention.triggers`) and a selector (which candidate runs, `elegant.intervention.selectors`).
+The evaluation runner, the CLI and the chain take their JITI settings from these fields. The defaults are
+the recommended recipe (docs/design.md, JITI; configs/effect.yaml). Run configs record `JITIConfig.record()`:
+the mode and the settings its decisions depend on (`MODE_SETTINGS`), no others. A mode is a preset of a
+trigger (when to draw and re-rank candidates, `elegant.intervention.triggers`) and a selector (which
+candidate runs, `elegant.intervention.selectors`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection, Mapping
 from dataclasses import asdict, dataclass, fields
 from typing import Any, Literal, get_args
 
@@ -22,9 +25,17 @@ MODES: tuple[str, ...] = get_args(Mode)
 THRESHOLD_MODES: tuple[str, ...] = get_args(ThresholdMode)
 TRIGGERS: tuple[str, ...] = get_args(TriggerName)
 WARMUPS: tuple[str, ...] = get_args(Warmup)
-DEFAULT_THRESHOLD = 1.0
 DEFAULT_NOISE_SCALE = 0.1
 MAX_CANDIDATES = 4096  # far beyond any useful count; a typo of more would exhaust memory at the first decision
+_CANDIDATES = ("n_candidates", "noise_scale", "trust_radius")
+# The settings each mode's decisions depend on: a run records these (and is compared on them when it
+# resumes or meets a gate), so a base run neither carries nor is refused over settings it never used.
+MODE_SETTINGS: dict[str, tuple[str, ...]] = {
+    "base": (),
+    "random": (*_CANDIDATES, "random_rate"),
+    "always": (*_CANDIDATES, "min_gain"),
+    "jiti": ("window", "threshold", "threshold_mode", "trigger", "warmup", *_CANDIDATES, "min_gain", "max_overrides"),
+}
 
 
 @dataclass(frozen=True)
@@ -35,14 +46,15 @@ class JITIConfig:
     recorded rollouts)."""
 
     mode: Mode = setting("jiti", "jiti: re-rank at critical moments; always: at every decision; base: never")
-    window: int = setting(10, "JITI's window: the number of past decisions whose scores set the reference m_t")
-    threshold: float = setting(DEFAULT_THRESHOLD, "tau: how far q_t may stray from m_t before JITI intervenes")
-    threshold_mode: ThresholdMode = setting("absolute", "tau in Q units (absolute) or in the window's std (std)")
+    window: int = setting(4, "JITI's window: the number of past decisions whose scores set the reference m_t")
+    threshold: float = setting(2.0, "tau: how far q_t may stray from m_t before JITI intervenes")
+    threshold_mode: ThresholdMode = setting("std", "tau in Q units (absolute) or in the window's std (std)")
     trigger: TriggerName = setting(
-        "deviation", "mode jiti's critical moment: |q - m| > tau (deviation), m - q > tau (drop) or none"
+        "drop", "mode jiti's critical moment: |q - m| > tau (deviation), m - q > tau (drop) or none"
     )
     warmup: Warmup = setting(
-        "base", "what mode jiti's first --window decisions execute: the base plan (base) or the critic's choice (steer)"
+        "steer",
+        "what mode jiti's first --window decisions execute: the base plan (base) or the critic's choice (steer)",
     )
     n_candidates: int = setting(
         16, "candidates drawn from the policy per re-ranked decision, the base plan one of them", flag="--candidates"
@@ -51,7 +63,7 @@ class JITIConfig:
         DEFAULT_NOISE_SCALE, "std of the Gaussian candidates around a policy's action when it cannot sample its own"
     )
     trust_radius: float | None = setting(
-        None, "only candidates within this distance of the base plan may be chosen (default: no limit)"
+        1.5, "only candidates within this distance of the base plan may be chosen (None: no limit)"
     )
     min_gain: float = setting(0.0, "a candidate must beat the base plan's score by more than this to replace it")
     max_overrides: int | None = setting(None, "mode jiti stops overriding after this many per episode (default: none)")
@@ -98,5 +110,30 @@ class JITIConfig:
         return tuple(f.name for f in fields(cls))
 
     def record(self) -> dict[str, Any]:
-        """The settings as run configs record them."""
-        return asdict(self)
+        """The mode and the settings its decisions depend on, as run configs record them."""
+        return mode_record(asdict(self))
+
+    def refuse_unused(self, given: Collection[str]) -> None:
+        """Refuse, in one line, a setting named in `given` that this config's mode does not use: a
+        threshold given to a base run would change nothing, silently."""
+        for name in given:
+            if name != "mode" and name not in MODE_SETTINGS[self.mode]:
+                flag = next(f.metadata.get("flag") for f in fields(self) if f.name == name) or "--" + name.replace(
+                    "_", "-"
+                )
+                users = [mode for mode, names in MODE_SETTINGS.items() if name in names]
+                raise UserInputError(
+                    f"JITI {name} ({flag}) does nothing in mode {self.mode!r} (it shapes mode {', '.join(users)}): "
+                    "leave it out"
+                )
+
+
+def mode_record(record: Mapping[str, Any], mode: str | None = None) -> dict[str, Any]:
+    """A recorded JITI settings dict cut to `mode`'s settings (default: its own "mode" entry); keys that are
+    not settings (the chunk, the policy adapter) stay. Records written before a run recorded only its
+    mode's settings held every setting: this reads them as today's record of the same run."""
+    mode = record.get("mode") if mode is None else mode
+    if mode not in MODE_SETTINGS:  # not a mode: kept whole, so the comparison names what differs
+        return dict(record)
+    others = set(JITIConfig.settings()) - {"mode", *MODE_SETTINGS[mode]}
+    return {k: v for k, v in record.items() if k not in others}

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,14 +28,29 @@ from base_suites import UserInputError
 from base_suites.runtime.io import atomic_write, read_json_file
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
+from base_suites.runtime.settings import setting
 from elegant.evaluation.episode_log import EpisodeLog
+from elegant.intervention.config import mode_record
 
 GATE_FORMAT = "libero-elegant-gate/3"
 GATED_MODES = ("jiti", "always")
 # the fields of a run's config.json that decide what a gated task's JITI or `always` does: a gate's
 # choices hold only for the policy, critic and JITI settings its validation runs used
 AGENT_FIELDS = ("policy", "policy_act", "critic", "jiti")
-INTERVENTION_BUDGET = 0.4  # the bound on JITI: at most 40% of `always`'s interventions
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    """How a gate chooses (each field is also an option of `elegant gate`)."""
+
+    budget: float = setting(
+        0.4,
+        "with --always: the suite's interventions per episode at most this share of always's (JITI's promise "
+        "is to intervene rarely)",
+    )
+
+
+INTERVENTION_BUDGET: float = GateConfig.budget
 
 
 def _run(path: str | os.PathLike, mode: str) -> tuple[dict[str, Any], dict[tuple[str, int], dict[str, Any]]]:
@@ -72,26 +88,35 @@ def _paired_effects(
     return tasks
 
 
-def _agent(config: dict[str, Any]) -> dict[str, Any]:
-    """The AGENT_FIELDS of a run's config: what a gate records as the JITI it validated."""
+def _agent(config: dict[str, Any], mode: str = "jiti") -> dict[str, Any]:
+    """The AGENT_FIELDS of a run's config (or a gate's "agent"), its JITI settings cut to those `mode`
+    uses (`mode_record`): what a gate records as the JITI it validated."""
     defaults = added_later("gate agent")  # what runs and gates from before a field existed did
-    return {field: config.get(field, defaults.get(field)) for field in AGENT_FIELDS}
+    agent = {field: config.get(field, defaults.get(field)) for field in AGENT_FIELDS}
+    if isinstance(agent["jiti"], dict):
+        agent["jiti"] = mode_record(agent["jiti"], mode)
+    return agent
 
 
-def _flat(agent: dict[str, Any]) -> dict[str, Any]:
-    """The AGENT_FIELDS of `agent` (a run's config or a gate's "agent") with the JITI settings spelled out
-    as "jiti.<setting>", so a mismatch names the setting."""
-    flat = _agent(agent)
+def _flat(agent: dict[str, Any], mode: str) -> dict[str, Any]:
+    """The AGENT_FIELDS of `agent` (read as `_agent` does) with the JITI settings spelled out as
+    "jiti.<setting>", so a mismatch names the setting."""
+    flat = _agent(agent, mode)
     jiti = flat.pop("jiti")
     return {**flat, **({f"jiti.{k}": v for k, v in sorted(jiti.items())} if isinstance(jiti, dict) else {"jiti": jiti})}
 
 
 def _refuse_other_agent(
-    path: str | os.PathLike, expected: dict[str, Any], got: dict[str, Any], whose: str, prefix: str = ""
+    path: str | os.PathLike,
+    expected: dict[str, Any],
+    got: dict[str, Any],
+    whose: str,
+    prefix: str = "",
+    mode: str = "jiti",
 ) -> None:
-    """Refuse `got`'s policy, critic and JITI settings (read as `_flat` does; at `prefix` in the file at
-    `path`) unless they equal `expected`'s, naming the first field that differs."""
-    want, have = _flat(expected), _flat(got)
+    """Refuse `got`'s policy, critic and JITI settings (read as `_flat` does, those of `mode`; at `prefix`
+    in the file at `path`) unless they equal `expected`'s, naming the first field that differs."""
+    want, have = _flat(expected, mode), _flat(got, mode)
     for field in dict.fromkeys([*want, *have]):
         if want.get(field) != have.get(field):
             raise UserInputError(
@@ -169,7 +194,7 @@ def task_gate(
                 )
     agent = _agent(configs["jiti"])
     if always_run is not None:
-        _refuse_other_agent(always_run, agent, configs["always"], f"the JITI run {jiti_run}'s")
+        _refuse_other_agent(always_run, agent, configs["always"], f"the JITI run {jiti_run}'s", mode="always")
     if not 0 < budget <= 1:
         raise UserInputError(f"gate budget must be in (0, 1] (a share of always's interventions), got {budget}")
     tasks = _paired_effects(base, runs)

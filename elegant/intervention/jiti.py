@@ -54,7 +54,7 @@ class Decision:
     """One logged decision (every step for a per-step policy, the first step of each chunk for a chunked
     one): the base plan's score, the window statistics and what was executed. `step` is the env step.
 
-    `mean`, `std`, `dq` and `tau` are None while the window warms up (or without a critic);
+    `mean`, `std`, `dq` and `tau` are None while the window warms up, outside mode "jiti" and without a critic;
     `q` and `chosen_q` are None only when JITI runs without a critic (modes "base" and "random").
     """
 
@@ -180,7 +180,9 @@ class JITI:
         self._random_steps = None if random_steps is None else frozenset(int(t) for t in random_steps)
         self._trigger = make_trigger(cfg, self._random_steps)
         self._selector = make_selector(cfg)
-        # mode "jiti" alone steers its warm-up and keeps an override budget
+        # mode "jiti" alone measures fluctuations over its window, steers its warm-up and keeps an override
+        # budget; other modes log no window statistics, since their runs record no window settings
+        self._uses_window = cfg.mode == "jiti"
         self._steers_warmup = cfg.mode == "jiti" and cfg.warmup == "steer"
         self._budget = cfg.max_overrides if cfg.mode == "jiti" else None
         self._seed = seed
@@ -248,7 +250,8 @@ class JITI:
         candidates = scores_c = member_scores = None
         if self.critic is not None:
             state = _state_of(obs)
-            if len(self._scores) == cfg.window:  # plain Python: ~10x faster than numpy on 10 floats
+            # plain Python: ~10x faster than numpy on a few floats
+            if self._uses_window and len(self._scores) == cfg.window:
                 mean = math.fsum(self._scores) / cfg.window
                 std = math.sqrt(math.fsum((x - mean) ** 2 for x in self._scores) / cfg.window)
                 tau = cfg.threshold if cfg.threshold_mode == "absolute" else cfg.threshold * std

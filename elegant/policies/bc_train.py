@@ -193,7 +193,7 @@ def train_policy(
     out: str,
     config: BCConfig | None = None,
     *,
-    successful_only: bool = False,
+    successful_only: bool = True,
     fine_tuning: FineTuning | None = None,
     resume: bool = False,
     overwrite: bool = False,

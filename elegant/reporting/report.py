@@ -173,10 +173,11 @@ def _settings_line(cfg: Mapping[str, Any]) -> str:
     chunk = f", decisions every {jiti['chunk']} steps" if jiti.get("chunk", 1) > 1 else ""
     if mode == "random":
         return f"random control: a random candidate at {jiti['random_rate']} of decisions; {candidates}{chunk}"
-    budget = jiti.get("max_overrides")
-    choice = f"min gain {jiti.get('min_gain', 0.0)}, override budget {budget if budget is not None else 'none'}"
+    gain = f"min gain {jiti.get('min_gain', 0.0)}"
     if mode == "always":
-        return f"always: the critic re-ranks every decision; {candidates}; {choice}{chunk}"
+        return f"always: the critic re-ranks every decision; {candidates}; {gain}{chunk}"
+    budget = jiti.get("max_overrides")
+    choice = f"{gain}, override budget {budget if budget is not None else 'none'}"
     trigger = (
         f"trigger {jiti.get('trigger', 'deviation')}, warm-up {jiti.get('warmup', 'base')}, window {jiti['window']}, "
         f"threshold {jiti['threshold']} ({jiti['threshold_mode']})"
