@@ -24,7 +24,7 @@ from base_suites.experts import EXPERT_VERSION, ScriptedExpert, knob_rates, pars
 from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import changed_fields
-from base_suites.runtime.jobs import check_picklable, check_workers, in_order, run_jobs
+from base_suites.runtime.jobs import Workers, check_picklable, check_workers, in_order, run_jobs
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.seeds import derive_seed
 from base_suites.runtime.settings import setting, with_overrides
@@ -108,7 +108,7 @@ def collect_episodes(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
-    workers: int = 1,
+    workers: int | Workers = 1,
 ) -> str:
     """Roll the source `make_source()` builds out as `collection` says and write the episodes to `out` in
         the demo layout: appended to `out.partial` in episode order as they finish, renamed to `out` when all
@@ -130,7 +130,7 @@ def collect_episodes(
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
     workers = check_workers(workers)
-    if workers > 1:
+    if not workers.in_process:
         check_picklable(make_source, "the policy or expert of these episodes")
     specs = task_specs(suite, tasks)
     collection = json.loads(
@@ -356,7 +356,7 @@ def collect_demos(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
-    workers: int = 1,
+    workers: int | Workers = 1,
     **settings: Any,
 ) -> dict[str, Any]:
     """Roll out the scripted expert on every task of `tasks` of `suite` (None: all) as `config` says

@@ -29,7 +29,7 @@ from annotations.dataset import Demo, DemoFile, DemoWriter
 from annotations.format import ANNOTATION_SCHEMA_VERSION, CRITERIA
 from annotations.human_labels import apply_human_labels, read_human_labels
 from base_suites import LiberoEnv, UserInputError, make_env, make_perturbation
-from base_suites.runtime.jobs import check_workers, in_order, run_jobs
+from base_suites.runtime.jobs import Workers, check_workers, in_order, run_jobs
 from base_suites.runtime.outputs import check_output
 from itc import EpisodeVerdict, ITCMonitor, ITCParams, derive_spec
 
@@ -195,7 +195,7 @@ def annotate_file(
     progress: bool = True,
     resume: bool = False,
     overwrite: bool = False,
-    workers: int = 1,
+    workers: int | Workers = 1,
 ) -> dict[str, Any]:
     """Write an ITC-annotated copy of a demo file; returns a summary (rates of success, elegance, violations).
     `workers`: processes replaying demos side by side (`base_suites.runtime.jobs`); the file does not depend on it.

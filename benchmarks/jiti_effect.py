@@ -21,6 +21,7 @@ import json
 
 from chain_arguments import add_chain_arguments, chain_config
 
+from base_suites.runtime.jobs import workers_from_args
 from elegant.pipeline import run_chain
 
 TARGETS = {"base_success": 0.70, "esr_gain": 0.15, "max_success_drop": 0.02, "max_intervention_ratio": 0.40}
@@ -59,7 +60,7 @@ def main() -> None:
     config = chain_config(args)
     if not {"base", "always", "jiti"} <= set(config.modes):
         parser.error(f"--modes {','.join(config.modes)}: the targets compare base, always and jiti")
-    result = run_chain(args.out, config, workers=args.workers)
+    result = run_chain(args.out, config, workers=workers_from_args(args))
     table = verdicts(result)
     print(f"{'suite':16s} {'mode':7s} {'success':>8s} {'ESR':>6s} {'interv/ep':>10s}")
     for suite, modes in result["per_suite"].items():

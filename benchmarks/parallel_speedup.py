@@ -18,20 +18,41 @@ import tempfile
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 
-from annotations import DemoFile
 from annotations.collect import collect_demos
 from elegant.cli import parse_indices
 
 
-def same_episodes(a: str, b: str) -> bool:
-    """Whether two demo files hold the same episodes: actions, simulator states and attributes."""
-    with DemoFile(a) as fa, DemoFile(b) as fb:
-        return len(fa) == len(fb) and all(
-            np.array_equal(da.actions, db.actions) and np.array_equal(da.states, db.states) and da.attrs == db.attrs
-            for da, db in zip(fa, fb)
-        )
+def hdf5_contents(path: str) -> dict[str, object]:
+    """Every dataset's values and every group's and dataset's attributes of an HDF5 file, by name."""
+
+    def attrs(obj: h5py.HLObject) -> dict:
+        return {k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in obj.attrs.items()}
+
+    out: dict[str, object] = {}
+    with h5py.File(path, "r") as f:
+        out["/@"] = attrs(f)
+
+        def visit(name: str, obj: h5py.HLObject) -> None:
+            out[f"{name}@"] = attrs(obj)
+            if isinstance(obj, h5py.Dataset):
+                out[name] = obj[()]
+
+        f.visititems(visit)
+    return out
+
+
+def hdf5_differences(a: str, b: str) -> list[str]:
+    """The names of the datasets and attribute sets in which two HDF5 files differ (none: identical)."""
+    ca, cb = hdf5_contents(a), hdf5_contents(b)
+    differ = sorted(set(ca) ^ set(cb))
+    for name in sorted(set(ca) & set(cb)):
+        x, y = ca[name], cb[name]
+        if not (np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y):
+            differ.append(name)
+    return differ
 
 
 def main() -> None:
@@ -59,7 +80,7 @@ def main() -> None:
                 workers=workers,
             )
             seconds[workers] = time.perf_counter() - start
-        identical = same_episodes(files[1], files[args.workers])
+        identical = not hdf5_differences(files[1], files[args.workers])
     episodes = len(tasks) * args.episodes
     print(
         f"{episodes} episodes: 1 worker {seconds[1]:.1f} s, {args.workers} workers {seconds[args.workers]:.1f} s, "

@@ -18,6 +18,7 @@ import json
 
 from chain_arguments import add_chain_arguments, chain_config
 
+from base_suites.runtime.jobs import workers_from_args
 from elegant.pipeline import run_chain
 
 TARGETS = {"suite_success": 0.70, "esr_gap": 0.10}
@@ -44,7 +45,7 @@ def main() -> None:
     add_chain_arguments(parser, recipe="policy_quality")
     args = parser.parse_args()
     config = chain_config(args)
-    result = run_chain(args.out, config, workers=args.workers)
+    result = run_chain(args.out, config, workers=workers_from_args(args))
     suites = {suite: modes["base"] for suite, modes in result["per_suite"].items()}
     tasks = {
         suite: {task: {k: row[k] for k in ("success_rate", "esr", "episodes")} for task, row in modes["base"].items()}

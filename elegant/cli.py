@@ -14,7 +14,7 @@ import re
 import sys
 import warnings
 from collections.abc import Callable, Sequence
-from typing import NoReturn
+from typing import Any, NoReturn
 
 COMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None], Callable[[argparse.Namespace], object]]] = {}
 
@@ -126,6 +126,13 @@ def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
     add_workers_argument(p, default)
 
 
+def _workers(args: argparse.Namespace) -> Any:
+    """Where the command's episodes run: `--workers`, `--backend`, `--ray-address`."""
+    from base_suites.runtime.jobs import workers_from_args
+
+    return workers_from_args(args)
+
+
 def _overwrite_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--overwrite", action="store_true", help="replace an existing output (a file only once the new one is complete)"
@@ -156,7 +163,7 @@ def _demos(args: argparse.Namespace) -> dict:
         args.out,
         resume=args.resume,
         overwrite=args.overwrite,
-        workers=args.workers,
+        workers=_workers(args),
         **settings_from_args(args, DemoConfig),
     )
 
@@ -191,7 +198,7 @@ def _rollouts(args: argparse.Namespace) -> dict:
         args.out,
         resume=args.resume,
         overwrite=args.overwrite,
-        workers=args.workers,
+        workers=_workers(args),
         **settings_from_args(args, RolloutConfig),
     )
 
@@ -235,7 +242,7 @@ def _annotate(args: argparse.Namespace) -> dict:
         overrides_dir=args.specs,
         resume=args.resume,
         overwrite=args.overwrite,
-        workers=args.workers,
+        workers=_workers(args),
         **({} if args.gamma is None else {"gamma": args.gamma}),
     )
     if args.export_labels:
@@ -379,7 +386,7 @@ def _eval(args: argparse.Namespace) -> dict:
         args.critic,
         out=args.out,
         resume=args.resume,
-        workers=args.workers,
+        workers=_workers(args),
         **settings,
     )
     return {k: v for k, v in summary.items() if k != "per_task"}
@@ -474,7 +481,7 @@ def _lifelong(args: argparse.Namespace) -> dict:
         args.data,
         args.out,
         resume=args.resume,
-        workers=args.workers,
+        workers=_workers(args),
         **settings_from_args(args, LifelongConfig),
     )
     return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
@@ -525,7 +532,7 @@ def _quickstart(args: argparse.Namespace) -> dict | None:
         "seed": args.seed,
     }
     recipe = with_overrides(load_recipe(args.recipe), {k: v for k, v in changes.items() if v is not None})
-    result = quickstart(args.out, recipe, workers=args.workers)
+    result = quickstart(args.out, recipe, workers=_workers(args))
     if not args.json:
         print(effects_text(result))
         return None

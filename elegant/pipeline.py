@@ -14,6 +14,7 @@ import os
 from typing import Any
 
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.jobs import Workers
 from base_suites.runtime.locks import output_lock
 from elegant.chain_config import ChainConfig, check_chain_settings, load_recipe
 
@@ -44,7 +45,7 @@ def _pooled(summaries: list[dict[str, Any]]) -> dict[str, float]:
     }
 
 
-def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int = 1) -> dict[str, Any]:
+def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int | Workers = 1) -> dict[str, Any]:
     """Run (or continue) the chain in directory `out`, its episodes (demos, annotation replays, rollouts,
     evaluations) on `workers` processes side by side: a run control, not a setting (the numbers do not
     depend on it), so a chain may be continued with another count.
@@ -58,7 +59,7 @@ def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int
         return _run_chain(out, config, progress, workers)
 
 
-def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int) -> dict[str, Any]:
+def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int | Workers) -> dict[str, Any]:
     """`run_chain`'s work, with the chain directory's lock held."""
     from annotations import annotate_file
     from annotations.collect import collect_demos
@@ -244,7 +245,7 @@ def effects_text(result: dict[str, Any]) -> str:
 
 
 def quickstart(
-    out: str = "runs/quickstart", config: ChainConfig | None = None, progress: bool = True, workers: int = 1
+    out: str = "runs/quickstart", config: ChainConfig | None = None, progress: bool = True, workers: int | Workers = 1
 ) -> dict[str, Any]:
     """The README's first command: the chain with the recipe configs/quickstart.yaml (or `config`)."""
     return run_chain(out, config or load_recipe("quickstart"), progress=progress, workers=workers)

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Create (or reuse) .venv at the repository root and install libero-elegant with its test extra.
+# Create (or reuse) .venv at the repository root and install libero-elegant with its test extra (which
+# includes the openpi and ray extras' packages).
 # Installs Debian's OSMesa (headless rendering) and strace (the kill-injection test) when they are missing
 # and apt is usable.
 set -euo pipefail

@@ -1,4 +1,5 @@
 """Episodes spread over worker processes: one job per episode, results back in the parent as each finishes.
+`Workers` says where: local processes, or Ray actors on a cluster (`base_suites.runtime.ray_jobs`).
 
 Why: an episode is a few seconds of single-threaded robosuite Python (85-110 env steps/s), so a
 500-episode evaluation kept one core busy for about 20 minutes while the other idled, and benchmarks
@@ -33,9 +34,10 @@ import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Any, Literal, TypeVar, get_args
 
-from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.errors import UserInputError, unknown_choice
 
 Job = TypeVar("Job")
 Result = TypeVar("Result")
@@ -45,14 +47,61 @@ _factory: Callable[[], Callable[[Any], Any]] | None = None
 _worker: Callable[[Any], Any] | None = None
 
 
+Backend = Literal["local", "ray"]
+BACKENDS: tuple[str, ...] = get_args(Backend)
+
+
+@dataclass(frozen=True)
+class Workers:
+    """Where a command's episodes run: `count` processes side by side on this machine (backend "local"),
+    or `count` Ray actors (backend "ray") on the cluster at `address` (None: a Ray started for the run on
+    this machine; "auto": the cluster this machine joined with `ray start`). A run control, not a
+    setting: files and numbers do not depend on it."""
+
+    count: int = 1
+    backend: Backend = "local"
+    address: str | None = None
+
+    def __post_init__(self) -> None:
+        if int(self.count) < 1:
+            raise UserInputError(f"--workers must be >= 1, got {self.count}")
+        if self.backend not in BACKENDS:
+            raise unknown_choice("backend", self.backend, BACKENDS)
+        if self.address is not None and self.backend != "ray":
+            raise UserInputError("--ray-address needs --backend ray")
+
+    @property
+    def in_process(self) -> bool:
+        """Whether the jobs run in this process (one local worker): objects then need not be picklable."""
+        return self.backend == "local" and self.count == 1
+
+
 def add_workers_argument(parser: argparse.ArgumentParser, default: int = 1) -> None:
-    """The `--workers` option every command that runs episodes takes."""
+    """The `--workers`, `--backend` and `--ray-address` options of every command that runs episodes
+    (read back by `workers_from_args`)."""
     parser.add_argument(
         "--workers",
         type=int,
         default=default,
-        help=f"processes running episodes side by side (default: {default}); results do not depend on it",
+        help=f"processes (or Ray actors) running episodes side by side (default: {default}); results do not "
+        "depend on it",
     )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="local",
+        help="local: processes on this machine; ray: Ray actors (pip install -e .[ray]); results do not depend on it",
+    )
+    parser.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="with --backend ray: the cluster's HOST:PORT, or auto for the one this machine joined with "
+        "`ray start` (default: start Ray on this machine)",
+    )
+
+
+def workers_from_args(args: argparse.Namespace) -> Workers:
+    return Workers(args.workers, args.backend, args.ray_address)
 
 
 def available_cores() -> int:
@@ -60,11 +109,16 @@ def available_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def check_workers(workers: int) -> int:
-    """Refuse a worker count below 1; more workers than cores are allowed (they only share them)."""
-    if int(workers) < 1:
-        raise UserInputError(f"--workers must be >= 1, got {workers}")
-    return int(workers)
+def check_workers(workers: int | Workers) -> Workers:
+    """`workers` as a `Workers` (a count means that many local processes), refusing a count below 1; more
+    workers than cores are allowed (they only share them). Backend "ray" connects here, before any work,
+    so that a missing extra or a wrong address is one line before anything is created."""
+    workers = workers if isinstance(workers, Workers) else Workers(int(workers))
+    if workers.backend == "ray":
+        from base_suites.runtime.ray_jobs import connect
+
+        connect(workers.address, workers.count)
+    return workers
 
 
 def check_picklable(value: Any, what: str) -> None:
@@ -100,25 +154,32 @@ def _limit_torch_threads() -> None:
         torch.set_num_threads(1)
 
 
-def _start_worker(make_worker: Callable[[], Callable[[Any], Any]]) -> None:
+def install_worker(make_worker: Callable[[], Callable[[Any], Any]]) -> None:
+    """Make this process a worker: one BLAS thread (the BLAS loaded while the factory was unpickled) and
+    the factory that `run_job` builds the worker from at its first job."""
     from threadpoolctl import threadpool_limits
 
+    threadpool_limits(1, user_api="blas")
+    global _factory, _worker
+    _factory, _worker = make_worker, None
+
+
+def _start_pool_worker(make_worker: Callable[[], Callable[[Any], Any]]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the parent, which terminates the pool
-    threadpool_limits(1, user_api="blas")  # the BLAS loaded while the factory was unpickled
-    global _factory
-    _factory = make_worker
+    install_worker(make_worker)
 
 
 class RemoteTraceback(Exception):
     """Where a worker's exception was raised: its traceback, chained as the cause of the re-raised error."""
 
 
-def _run_job(numbered: tuple[int, Any]) -> tuple[int, bool, Any]:
-    """(position, True, result), or (position, False, (exception, its formatted traceback))."""
+def run_job(numbered: tuple[int, Any]) -> tuple[int, bool, Any]:
+    """Job `numbered` = (position, job) on this process's worker: (position, True, result), or (position,
+    False, (exception, its formatted traceback))."""
     global _worker
     try:
         if _worker is None:
-            assert _factory is not None, "worker process used before _start_worker"
+            assert _factory is not None, "worker process used before install_worker"
             _worker = _factory()
         _limit_torch_threads()
         return numbered[0], True, _worker(numbered[1])
@@ -128,7 +189,7 @@ def _run_job(numbered: tuple[int, Any]) -> tuple[int, bool, Any]:
 
 @contextmanager
 def run_jobs(
-    make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job], workers: int = 1
+    make_worker: Callable[[], Callable[[Job], Result]], jobs: Sequence[Job], workers: int | Workers = 1
 ) -> Iterator[Iterator[tuple[Job, Result]]]:
     """Context giving an iterator of (job, result) pairs in the order the jobs finish (submission order
     with one worker). A job's exception is raised from the iterator; leaving the context (an error, a
@@ -138,7 +199,17 @@ def run_jobs(
             for job, result in results: ...
     """
     workers = check_workers(workers)
-    if workers == 1 or len(jobs) <= 1:
+    if workers.backend == "ray":
+        from base_suites.runtime.ray_jobs import run_on_ray
+
+        check_picklable(make_worker, "the worker factory")
+        remote = run_on_ray(make_worker, jobs, workers.count, workers.address)
+        try:
+            yield remote
+        finally:
+            remote.close()
+        return
+    if workers.count == 1 or len(jobs) <= 1:
         serial = _serial(make_worker, jobs)
         try:
             yield serial
@@ -148,12 +219,12 @@ def run_jobs(
     check_picklable(make_worker, "the worker factory")
     with _spawned_with_one_thread():  # processes start at submit: all of them inside
         pool = ProcessPoolExecutor(
-            min(workers, len(jobs)),
+            min(workers.count, len(jobs)),
             mp_context=multiprocessing.get_context("spawn"),
-            initializer=_start_worker,
+            initializer=_start_pool_worker,
             initargs=(make_worker,),
         )
-        futures = {pool.submit(_run_job, (n, job)): n for n, job in enumerate(jobs)}
+        futures = {pool.submit(run_job, (n, job)): n for n, job in enumerate(jobs)}
     try:
         yield _as_finished(futures, jobs)
     finally:

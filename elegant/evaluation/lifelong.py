@@ -48,7 +48,7 @@ from annotations.format import task_key
 from base_suites import get_task
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
-from base_suites.runtime.jobs import check_workers
+from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.settings import with_overrides
@@ -74,7 +74,7 @@ class _Run:
     paths: list[str]
     features: BCFeatures
     status: Callable[[str], None]
-    workers: int = 1  # processes per evaluation (a run control, not a setting: results do not depend on it)
+    workers: int | Workers = 1  # processes per evaluation (a run control, not a setting: results do not depend on it)
     kept: list[str] = field(default_factory=list)
 
     def stage_dir(self, k: int) -> str:
@@ -203,7 +203,7 @@ def run_lifelong(
     *,
     progress: bool = True,
     resume: bool = False,
-    workers: int = 1,
+    workers: int | Workers = 1,
     **settings: Any,
 ) -> dict[str, Any]:
     """Learn `tasks` of `suite` in order with sequential fine-tuning and measure LIBERO's lifelong metrics.

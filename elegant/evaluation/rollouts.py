@@ -33,6 +33,7 @@ from annotations.collect import Collection, collect_episodes
 from annotations.dataset import DemoFile
 from base_suites import task_specs
 from base_suites.env import LiberoEnv
+from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import RolloutConfig
@@ -142,7 +143,7 @@ def collect_rollouts(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
-    workers: int = 1,
+    workers: int | Workers = 1,
     **settings: Any,
 ) -> dict[str, Any]:
     """Roll `policy` (a directory or a callable) out on every task of `tasks` of `suite` (None: all of it)
@@ -191,7 +192,7 @@ def collect_rollouts(
         obs=cfg.obs,
         desc="rollouts",
     )
-    source_of = (lambda: source) if workers == 1 else make_source
+    source_of = (lambda: source) if check_workers(workers).in_process else make_source
     path = collect_episodes(
         rollouts_of, out, source_of, resume=resume, overwrite=overwrite, progress=progress, workers=workers
     )

@@ -37,7 +37,7 @@ from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
 from base_suites.rollout import run_episode
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file, with_added_settings
-from base_suites.runtime.jobs import check_picklable, check_workers, run_jobs
+from base_suites.runtime.jobs import Workers, check_picklable, check_workers, run_jobs
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
@@ -179,7 +179,7 @@ def evaluate(
     *,
     out: str | os.PathLike = "runs/eval",
     resume: bool = False,
-    workers: int = 1,
+    workers: int | Workers = 1,
     progress: bool = True,
     **settings: Any,
 ) -> dict[str, Any]:
@@ -213,7 +213,7 @@ def evaluate(
         )
     indices = list(dict.fromkeys(spec.index for spec in specs))
     workers = check_workers(workers)
-    if workers > 1:
+    if not workers.in_process:
         check_picklable((policy, critic), "the policy or the critic")
     agent = build_agent(policy, critic, cfg)
     chosen = None if cfg.init_states is None else sorted({int(i) for i in cfg.init_states})
@@ -260,7 +260,7 @@ def evaluate(
         # the agent built here serves a serial run; worker processes each build their own from the same inputs
         make_worker = partial(
             EpisodeRunner,
-            agent if workers == 1 else partial(build_agent, policy, critic, cfg),
+            agent if workers.in_process else partial(build_agent, policy, critic, cfg),
             record,
             str(out),
         )
