@@ -26,13 +26,18 @@ def local_ray():
     ray.shutdown()
 
 
-def test_demos_on_ray_write_the_local_backends_file(tmp_path):
+def test_demos_and_their_annotation_on_ray_write_the_local_backends_files(tmp_path):
+    from annotations import annotate_file
     from annotations.collect import collect_demos
 
+    differences = load_benchmark("parallel_speedup").hdf5_differences
     kw = {"episodes": 3, "seed": 0, "progress": False}
     collect_demos(SUITE, [0], str(tmp_path / "local.hdf5"), workers=1, **kw)
     collect_demos(SUITE, [0], str(tmp_path / "ray.hdf5"), workers=RAY, **kw)
-    assert load_benchmark("parallel_speedup").hdf5_differences(tmp_path / "local.hdf5", tmp_path / "ray.hdf5") == []
+    assert differences(tmp_path / "local.hdf5", tmp_path / "ray.hdf5") == []
+    annotate_file(str(tmp_path / "local.hdf5"), str(tmp_path / "local_ann.hdf5"), progress=False)
+    annotate_file(str(tmp_path / "local.hdf5"), str(tmp_path / "ray_ann.hdf5"), progress=False, workers=RAY)
+    assert differences(tmp_path / "local_ann.hdf5", tmp_path / "ray_ann.hdf5") == []
 
 
 def untimed(record: dict) -> dict:
