@@ -15,9 +15,10 @@ that says where each old field lives now and what an old chain that lacked it ra
 
 from __future__ import annotations
 
+import copy
 import json
 import os
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -219,6 +220,21 @@ def migrate_flat_record(record: dict[str, Any]) -> dict[str, Any]:
     return with_overrides(base, nested_record, "chain.json").record()
 
 
+def _chosen(record: dict[str, Any]) -> dict[str, Any]:
+    """A chain record without the stage fields the chain sets itself (`nested(..., derived=...)`): they
+    follow from the chain's own settings, and their recorded defaults say nothing of what it ran."""
+    record = copy.deepcopy(record)
+    for f in fields(ChainConfig):
+        for path in f.metadata.get("derived", ()):
+            *parents, leaf = path.split(".")
+            node = record.get(f.name)
+            for parent in parents:
+                node = node.get(parent) if isinstance(node, dict) else None
+            if isinstance(node, dict):
+                node.pop(leaf, None)
+    return record
+
+
 def check_chain_settings(out: str, config: ChainConfig) -> None:
     """Record `config` in OUT/chain.json, or refuse, in one line naming the fields, a chain directory that
     holds a chain with other settings (any format)."""
@@ -233,7 +249,7 @@ def check_chain_settings(out: str, config: ChainConfig) -> None:
         else:
             found = stored.get("format") if isinstance(stored, dict) else type(stored).__name__
             raise UserInputError(f"{path}: field 'format' is {found!r}; expected {CHAIN_FORMAT!r}")
-        changed = changed_fields(stored, settings)
+        changed = changed_fields(_chosen(stored), _chosen(settings), added=added_later("chain"))
         if changed:
             raise UserInputError(
                 f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose "

@@ -354,3 +354,18 @@ def test_more_episodes_than_starts_warns_and_the_summary_counts_starts(tmp_path)
             init_states=[4, 5], max_steps=2,
         )  # fmt: skip
     assert summary["starts"] == 2 and summary["episodes_per_start"] == 1.5
+
+
+def test_a_base_run_that_recorded_every_jiti_setting_resumes_whatever_the_defaults_now_are(tmp_path):
+    """Runs once recorded every JITI setting, used by their mode or not; a base run used none of them."""
+    out = tmp_path / "base"
+    run(out, mode="base", episodes=1)
+    config = json.loads((out / "config.json").read_text())
+    assert set(config["jiti"]) == {"chunk", "policy_adapter"}  # a base run records no JITI setting
+    config["jiti"].update(window=10, threshold=1.0, threshold_mode="absolute", trigger="deviation", warmup="base",
+                          n_candidates=16, noise_scale=0.1, trust_radius=None, min_gain=0.0, max_overrides=None,
+                          random_rate=0.1)  # fmt: skip
+    (out / "config.json").write_text(json.dumps(config))
+    assert run(out, mode="base", episodes=2, resume=True)["episodes"] == 2
+    with pytest.raises(UserInputError, match="field 'mode' is 'base' but this run has 'always'"):
+        run(out, mode="always", episodes=2, resume=True)

@@ -170,3 +170,15 @@ def test_a_flat_chain_record_migrates_to_exactly_the_settings_that_chain_ran_wit
         check_chain_settings(str(tmp_path), with_overrides(load_recipe("quickstart"), {"critic": {"steps": 1}}))
     with pytest.raises(UserInputError, match="field 'chunky' is not a setting of any chain format"):
         migrate_flat_record({**FLAT_QUICKSTART, "chunky": 1})
+
+
+def test_a_format_2_chain_from_before_later_settings_and_default_changes_still_resumes(tmp_path):
+    """A chain record keeps the stage fields the chain sets itself at their defaults of the day (the critic's
+    chunk was 1) and lacks settings added since (the rollouts' obs): neither makes it another chain."""
+    settings = load_recipe("quickstart").record()
+    settings["critic"]["chunk"] = 1
+    del settings["rollout"]["obs"]
+    (tmp_path / "chain.json").write_text(json.dumps({"format": "libero-elegant-chain/2", "settings": settings}))
+    check_chain_settings(str(tmp_path), load_recipe("quickstart"))
+    with pytest.raises(UserInputError, match=r"holds a chain with other settings \(rollout.obs\)"):
+        check_chain_settings(str(tmp_path), with_overrides(load_recipe("quickstart"), {"rollout": {"obs": "vla"}}))

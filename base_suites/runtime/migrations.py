@@ -47,6 +47,8 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
     },
     # the agent a gate file (or a run it reads) records: before the policy act
     "gate agent": {"policy_act": "mode"},
+    # chain.json's settings in format 2: before the rollouts' observation mode
+    "chain": {"rollout": {"obs": "lowdim"}},
     # chain.json in its flat format 1 (`elegant.chain_config.migrate_flat_record` maps it to format 2); None
     # there stands for the stage's default of the day
     "flat chain": {
