@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from base_suites import UserInputError
+from base_suites.runtime.jobs import Workers
 from elegant.evaluation.runner import episode_start, evaluate
 from elegant.intervention.config import MODE_SETTINGS
 
@@ -265,11 +266,11 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     assert calls[-1] == {
         "out": str(tmp_path / "run"),
         "resume": False,
-        "workers": 1,
+        "workers": Workers(1),
         **{name: value for name, (_, _, value) in flags.items()},
     }
     assert main(common + ["--min-gain", "0.05"]) == 0  # a setting left out is not passed: the config's default holds
-    assert calls[-1] == {"out": str(tmp_path / "run"), "resume": False, "workers": 1, "min_gain": 0.05}
+    assert calls[-1] == {"out": str(tmp_path / "run"), "resume": False, "workers": Workers(1), "min_gain": 0.05}
     assert main(common + ["--policy-act", "sample", "--init-states", "0-2,5", "--mode", "base"]) == 0
     assert calls[-1]["policy_act"] == "sample" and calls[-1]["init_states"] == (0, 1, 2, 5)
     assert calls[-1]["mode"] == "base"

@@ -259,10 +259,7 @@ def evaluate(
         ]
         # the agent built here serves a serial run; worker processes each build their own from the same inputs
         make_worker = partial(
-            EpisodeRunner,
-            agent if workers.in_process else partial(build_agent, policy, critic, cfg),
-            record,
-            str(out),
+            EpisodeRunner, agent if workers.in_process else partial(build_agent, policy, critic, cfg), record
         )
         try:
             total = len(indices) * int(cfg.episodes)
@@ -270,7 +267,8 @@ def evaluate(
                 total=total, initial=total - len(jobs), desc=f"eval {cfg.mode}", unit="ep", disable=not progress
             ) as bar:
                 with run_jobs(make_worker, jobs, workers) as results:
-                    for _, episode in results:
+                    for _, (episode, trace) in results:  # only this process writes: workers may be other machines
+                        atomic_write(out / episode["trace"], json.dumps(trace))
                         log.append(episode)
                         bar.update(1)
                         bar.set_postfix(
@@ -301,19 +299,20 @@ class EvalJob:
 
 
 class EpisodeRunner:
-    """Runs evaluation episodes (`EvalJob`) and returns their records, writing each one's decision trace.
+    """Runs evaluation episodes (`EvalJob`) and returns each one's record and decision trace (the caller
+    writes them: a worker may run on another machine).
 
     Keeps one env with its ITC monitor between episodes of a task (building one costs ~2.5 s). `agent`
     is the JITI-wrapped policy, or a factory that builds it (in a worker process, from directories)."""
 
-    def __init__(self, agent: JITI | Callable[[], JITI], config: Mapping[str, Any], out: str) -> None:
+    def __init__(self, agent: JITI | Callable[[], JITI], config: Mapping[str, Any]) -> None:
         agent = agent if isinstance(agent, JITI) else agent()
         self._agents = {agent.mode: agent}  # one agent per mode a gate runs tasks in, none changed during the run
-        self.config, self.out = config, Path(out)
+        self.config = config
         self._task: int | None = None
         self._env = self._monitor = None
 
-    def __call__(self, job: EvalJob) -> dict[str, Any]:
+    def __call__(self, job: EvalJob) -> tuple[dict[str, Any], dict[str, Any]]:
         from itc import ITCMonitor
 
         config, suite = self.config, self.config["suite"]
@@ -351,8 +350,7 @@ class EpisodeRunner:
             "events": [list(e) for e in verdict.events],
             "decisions": agent.trace(),
         }
-        atomic_write(self.out / record["trace"], json.dumps(trace))
-        return record
+        return record, trace
 
     def _agent(self, mode: str) -> JITI:
         """The agent of `mode`: the run's own, or the same policy and critic under a gate's other mode."""
