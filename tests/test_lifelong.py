@@ -15,6 +15,7 @@ import torch
 
 from annotations.collect import collect_demos
 from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.jobs import Workers
 from elegant.cli import main
 from elegant.evaluation.lifelong import run_lifelong
 from elegant.evaluation.metrics import lifelong_metrics
@@ -160,7 +161,7 @@ def test_cli_hands_the_worker_count_to_the_evaluations(demos, tmp_path, monkeypa
         main(["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "w"), "--workers", "2"])
         == 0
     )
-    assert seen["workers"] == 2
+    assert seen["workers"] == Workers(2)
 
 
 def test_a_run_from_before_the_mixture_size_setting_resumes_with_its_five_components(demos, tmp_path):

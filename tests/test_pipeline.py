@@ -275,7 +275,7 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
 def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(monkeypatch, tmp_path):
     """`elegant quickstart` hands the recipe configs/quickstart.yaml (chunked policy, branch rollouts, outcome
     critic, steered JITI) to the chain with the flags it was given, on one worker per core unless told otherwise."""
-    from base_suites.runtime.jobs import available_cores
+    from base_suites.runtime.jobs import Workers, available_cores
     from elegant import cli, pipeline
     from elegant.chain_config import load_recipe
 
@@ -289,7 +289,9 @@ def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(mon
     assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--workers", "1"]) == 0
     (out, config, workers), (_, plain, one) = calls
     recipe = load_recipe("quickstart")
-    assert out == str(tmp_path / "qs") and (workers, one) == (available_cores(), 1) and plain == recipe
+    assert (
+        out == str(tmp_path / "qs") and (workers, one) == (Workers(available_cores()), Workers(1)) and plain == recipe
+    )
     assert config.tasks == (3,) and config.seed == 2 and config.suites == recipe.suites
     assert replace(config, tasks=recipe.tasks, seed=recipe.seed) == recipe
     # the recipe passes the chain's own checks (rollouts for the explored fraction, a steered warm-up)
