@@ -55,15 +55,21 @@ def hdf5_differences(a: str, b: str) -> list[str]:
     return differ
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_collection_arguments(parser: argparse.ArgumentParser, episodes: int) -> None:
+    """The expert collection a worker benchmark times: --suite, --tasks, --episodes (per task), --workers,
+    --seed."""
     parser.add_argument("--suite", default="libero_object")
-    parser.add_argument("--tasks", default="0,1")
-    parser.add_argument("--episodes", type=int, default=10, help="episodes per task")
+    parser.add_argument("--tasks", default="0,1", type=lambda text: parse_indices(text, "--tasks"))
+    parser.add_argument("--episodes", type=int, default=episodes, help="episodes per task")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_collection_arguments(parser, episodes=10)
     args = parser.parse_args()
-    tasks = parse_indices(args.tasks, "--tasks")
+    tasks = args.tasks
     seconds, files = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         for workers in (1, args.workers):

@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from parallel_speedup import hdf5_differences
+from parallel_speedup import add_collection_arguments, hdf5_differences
 
 from annotations.collect import EpisodeJob, collect_demos
 from annotations.dataset import DemoFile
@@ -49,14 +49,10 @@ def round_trip_ms(jobs: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--suite", default="libero_object")
-    parser.add_argument("--tasks", default="0,1")
-    parser.add_argument("--episodes", type=int, default=6, help="episodes per task")
-    parser.add_argument("--workers", type=int, default=2)
+    add_collection_arguments(parser, episodes=6)
     parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
-    tasks = [int(t) for t in args.tasks.split(",")]
+    tasks = args.tasks
     backends = {"local": Workers(args.workers), "ray": check_workers(Workers(args.workers, "ray"))}
     episodes = len(tasks) * args.episodes
     seconds: dict[str, list[float]] = {name: [] for name in backends}

@@ -101,6 +101,7 @@ def add_workers_argument(parser: argparse.ArgumentParser, default: int = 1) -> N
 
 
 def workers_from_args(args: argparse.Namespace) -> Workers:
+    """The `Workers` the options of `add_workers_argument` name."""
     return Workers(args.workers, args.backend, args.ray_address)
 
 

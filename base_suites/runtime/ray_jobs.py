@@ -89,9 +89,6 @@ class JobActor:
 
         install_worker(make_worker)
 
-    def pid(self) -> int:
-        return os.getpid()
-
     def run(self, numbered: tuple[int, Any]) -> tuple[int, bool, Any]:
         from base_suites.runtime.jobs import run_job
 

@@ -279,7 +279,7 @@ class JITI:
             executed = candidates[chosen]
             self._overrides += chosen != 0
             chosen_q = None if scores_c is None else float(scores_c[chosen])
-        if chosen_q is not None:
+        if chosen_q is not None and self._uses_window:
             self._scores.append(chosen_q)
         elapsed = time.perf_counter() - start
         self.log.append(
