@@ -41,6 +41,12 @@ class CriticEnsemble:
             member.bind(metadata)
         return self
 
+    def to(self, device: Any) -> CriticEnsemble:
+        """Score every member on `device` (`Critic.to`)."""
+        for member in self.members:
+            member.to(device)
+        return self
+
     def member_q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Every member's Q of the actions: shape (members,) + the shape one critic's `q` returns."""
         return np.stack([np.asarray(m.q(state, actions), dtype=np.float64) for m in self.members])

@@ -274,7 +274,7 @@ class CalQLLoss(LossModule):
         policy_actions = drawn[1:].detach().view(n, 2, batch, -1).permute(2, 1, 0, 3).reshape(batch, 2 * n, -1)
         policy_log_prob = drawn_log_prob[1:].detach().view(n, 2, batch).permute(2, 1, 0).reshape(batch, 2 * n)
 
-        uniform = torch.empty(batch, n, self.action_dim, dtype=action.dtype).uniform_(-1.0, 1.0)
+        uniform = torch.empty(batch, n, self.action_dim, dtype=action.dtype, device=action.device).uniform_(-1.0, 1.0)
         q = self._q(self.qvalue_network_params, obs, torch.cat([action.unsqueeze(1), uniform, policy_actions], dim=1))
         actor_q = self._q(self.qvalue_network_params.detach(), obs, actor_action.unsqueeze(1)).amin(0).squeeze(-1)
         with torch.no_grad():  # .data: swapping the target buffers into the module would turn them into Parameters

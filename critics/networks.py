@@ -79,7 +79,7 @@ class _FusedTwinMLP(torch.autograd.Function):
         per_state = torch.baddbmm(first_bias, obs.expand(c, batch, obs.shape[-1]), obs_weight)
         flat = actions.reshape(batch * k, a)
         step = max(1, _CHUNK_ROWS // k)
-        q = torch.empty(c, batch, k, dtype=obs.dtype)
+        q = torch.empty(c, batch, k, dtype=obs.dtype, device=obs.device)
         ctx.hidden = []
         for s0 in range(0, batch, step):
             s1 = min(batch, s0 + step)
@@ -103,7 +103,7 @@ class _FusedTwinMLP(torch.autograd.Function):
         d_weights = [torch.zeros_like(w) for w in weights]
         d_biases = [torch.zeros_like(b) for b in layers[n:]]
         d_action_weight = torch.zeros_like(action_weight)
-        d_per_state = torch.empty(c, batch, width, dtype=dq.dtype)
+        d_per_state = torch.empty(c, batch, width, dtype=dq.dtype, device=dq.device)
         last_row = weights[-1].transpose(1, 2)  # (C, 1, H)
         transposed = [w.transpose(1, 2).contiguous() for w in weights[:-1]]
         for chunk, s0 in enumerate(range(0, batch, step)):

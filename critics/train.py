@@ -28,6 +28,7 @@ from tensordict import TensorDictBase
 from torchrl.objectives import SoftUpdate
 from tqdm.auto import tqdm
 
+from base_suites.runtime.compute import ComputeConfig, device_kind, refuse_other_device, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, library_versions
 from base_suites.runtime.locks import output_lock
@@ -41,6 +42,7 @@ from critics.divergence import refuse_divergence
 from critics.loss import CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
+_CPU = torch.device("cpu")
 CHECKPOINT_FORMAT = "libero-elegant/critic-checkpoint/1"
 CHECKPOINT_FILE = "checkpoint.pt"
 METRICS_FILE = "metrics.csv"
@@ -51,10 +53,12 @@ _RESUMABLE_CHANGES = ("steps", "checkpoint_every")
 class _Run:
     """The modules, optimiser and random state of one training run."""
 
-    def __init__(self, cfg: TrainConfig, data: TransitionData) -> None:
+    def __init__(self, cfg: TrainConfig, data: TransitionData, device: torch.device = _CPU) -> None:
         torch.manual_seed(cfg.seed)
+        # initialised on the CPU on every device, so a GPU run starts from the CPU run's weights
         critic = TwinQNetwork(data.obs_dim, data.action_dim, cfg.hidden)
         actor = TanhGaussianActor(data.obs_dim, data.action_dim, cfg.hidden)
+        self.device = device
         self.loss = CalQLLoss(
             actor,
             critic,
@@ -68,7 +72,7 @@ class _Run:
             backup=cfg.backup,
             mc_weight=cfg.mc_weight,
             value_loss=cfg.value_loss,
-        )
+        ).to(device)
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         groups = [
             {"params": list(self.loss.actor_network_params.values(True, True)), "lr": cfg.actor_lr},
@@ -106,7 +110,7 @@ class _Run:
         batch = self.buffer.sample()
         if self.explored_buffer is not None:
             batch = torch.cat([batch, self.explored_buffer.sample()])
-        losses = self.loss(batch)
+        losses = self.loss(batch.to(self.device))
         total = sum(v for k, v in losses.items() if k.startswith("loss_"))
         self.optimizer.zero_grad(set_to_none=True)
         total.backward()
@@ -124,6 +128,9 @@ class _Run:
             "optimizer": self.optimizer.state_dict(),
             "torch_rng": torch.get_rng_state(),
             "sampler_rng": self.generator.get_state(),
+            # the policy's action draws come from the GPU's generator on a GPU
+            "cuda_rng": torch.cuda.get_rng_state(self.device) if self.device.type == "cuda" else None,
+            "device": device_kind(self.device),
             "versions": library_versions(),
         }
 
@@ -132,6 +139,8 @@ class _Run:
         self.optimizer.load_state_dict(state["optimizer"])
         torch.set_rng_state(state["torch_rng"])
         self.generator.set_state(state["sampler_rng"])
+        if self.device.type == "cuda":
+            torch.cuda.set_rng_state(state["cuda_rng"], self.device)
 
 
 def _read_checkpoint(path: str) -> dict[str, Any]:
@@ -146,7 +155,9 @@ def _read_checkpoint(path: str) -> dict[str, Any]:
     return state
 
 
-def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str) -> None:
+def _check_resumable(
+    path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str, device: torch.device
+) -> None:
     changed = changed_fields(
         state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added_later("critic checkpoint")
     )
@@ -160,6 +171,7 @@ def _check_resumable(path: str, state: dict[str, Any], cfg: TrainConfig, fingerp
         raise UserInputError(
             f"{path}: the training data changed since this checkpoint was written (fingerprint differs)"
         )
+    refuse_other_device(path, state.get("device", "cpu"), device)
 
 
 class _MetricsLog:
@@ -194,6 +206,7 @@ def train_critic(
     resume: bool = False,
     overwrite: bool = False,
     progress: bool = True,
+    compute: ComputeConfig | None = None,
     **settings: Any,
 ) -> dict[str, Any]:
     """Train a Cal-QL elegance critic on annotated HDF5 files; write checkpoints, metrics and the critic to `out`.
@@ -211,6 +224,7 @@ def train_critic(
     paths = [os.path.abspath(p) for p in paths]
     cfg = with_overrides(config or TrainConfig(), {**settings, "paths": paths}, "train-critic")
     cfg.validate()
+    device = use_compute(compute or ComputeConfig(), "train-critic")
     check_output(out, "dir", resume=resume, overwrite=overwrite, results=(CHECKPOINT_FILE, WEIGHTS_FILE))
     ckpt_path = os.path.join(out, CHECKPOINT_FILE)
     data = load_transitions(cfg.paths, cfg.gamma, cfg.reward, cfg.chunk, cfg.bootstrap)
@@ -219,12 +233,12 @@ def train_critic(
         if overwrite:  # the earlier run's critic and checkpoint go before this run writes its own
             remove_results(out, (CHECKPOINT_FILE, WEIGHTS_FILE))
         fingerprint = data.fingerprint()
-        run = _Run(cfg, data)
+        run = _Run(cfg, data, device)
         start = 0
         resumed_from = None
         if resume and os.path.exists(ckpt_path):
             state = _read_checkpoint(ckpt_path)
-            _check_resumable(ckpt_path, state, cfg, fingerprint)
+            _check_resumable(ckpt_path, state, cfg, fingerprint, device)
             if int(state["step"]) > cfg.steps:
                 raise UserInputError(
                     f"{ckpt_path}: checkpoint is at step {state['step']}, beyond steps={cfg.steps}; ask for at least "
@@ -264,7 +278,12 @@ def train_critic(
             data.normalization,
             gamma=data.gamma,
             chunk=data.chunk,
-            training={**asdict(cfg), "fingerprint": fingerprint, "transitions": len(data.transitions)},
+            training={
+                **asdict(cfg),
+                "fingerprint": fingerprint,
+                "transitions": len(data.transitions),
+                "device": device_kind(device),
+            },
         )
         trained = max(cfg.steps - start, 0)
         return {
@@ -277,5 +296,6 @@ def train_critic(
             "gamma": data.gamma,
             "seconds": seconds,
             "steps_per_second": trained / seconds if trained and seconds > 0 else None,
+            "device": device_kind(device),
             "final": last,
         }

@@ -133,6 +133,24 @@ def _workers(args: argparse.Namespace) -> Any:
     return workers_from_args(args)
 
 
+def _compute_args(p: argparse.ArgumentParser) -> None:
+    """--device and --threads: where a command's networks train and score (`ComputeConfig`)."""
+    from base_suites.runtime.compute import ComputeConfig
+    from base_suites.runtime.settings import add_settings_arguments
+
+    add_settings_arguments(p, ComputeConfig)
+
+
+def _compute(args: argparse.Namespace) -> Any:
+    """The `ComputeConfig` the options name, refused in one line if malformed (before any work)."""
+    from base_suites.runtime.compute import ComputeConfig
+    from base_suites.runtime.settings import settings_from_args
+
+    config = ComputeConfig(**settings_from_args(args, ComputeConfig))
+    config.validate(args.command)
+    return config
+
+
 def _overwrite_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--overwrite", action="store_true", help="replace an existing output (a file only once the new one is complete)"
@@ -278,6 +296,7 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--resume", action="store_true")
     _overwrite_arg(p)
+    _compute_args(p)
 
 
 @command("train-policy", "train the BC base policy (GMM head) on demos")(_train_policy_args)
@@ -292,6 +311,7 @@ def _train_policy(args: argparse.Namespace) -> dict:
         successful_only=args.successful_only,
         resume=args.resume,
         overwrite=args.overwrite,
+        compute=_compute(args),
         **settings_from_args(args, BCConfig),
     )
     summary.pop("loss_history", None)
@@ -307,6 +327,7 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
     add_settings_arguments(p, TrainConfig, exclude=("paths",))
     p.add_argument("--resume", action="store_true")
     _overwrite_arg(p)
+    _compute_args(p)
 
 
 @command("train-critic", "train the Cal-QL elegance critic offline on annotated demos")(_train_critic_args)
@@ -315,7 +336,9 @@ def _train_critic(args: argparse.Namespace) -> dict:
     from critics import TrainConfig, train_critic
 
     settings = settings_from_args(args, TrainConfig, exclude=("paths",))
-    return train_critic(args.data, args.out, resume=args.resume, overwrite=args.overwrite, **settings)
+    return train_critic(
+        args.data, args.out, resume=args.resume, overwrite=args.overwrite, compute=_compute(args), **settings
+    )
 
 
 def _rank_check_args(p: argparse.ArgumentParser) -> None:
@@ -369,6 +392,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     add_settings_arguments(p, EvalConfig, exclude=("jiti",))
     add_settings_arguments(p, JITIConfig)
     _workers_arg(p)
+    _compute_args(p)
 
 
 @command("eval", "evaluate a policy (base, always or JITI) with success, ESR and ITC violations")(_eval_args)
@@ -387,6 +411,7 @@ def _eval(args: argparse.Namespace) -> dict:
         out=args.out,
         resume=args.resume,
         workers=_workers(args),
+        compute=_compute(args),
         **settings,
     )
     return {k: v for k, v in summary.items() if k != "per_task"}
@@ -465,6 +490,7 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     add_settings_arguments(p, LifelongConfig)
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
     _workers_arg(p)
+    _compute_args(p)
 
 
 @command(
@@ -482,6 +508,7 @@ def _lifelong(args: argparse.Namespace) -> dict:
         args.out,
         resume=args.resume,
         workers=_workers(args),
+        compute=_compute(args),
         **settings_from_args(args, LifelongConfig),
     )
     return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
@@ -514,6 +541,7 @@ def _quickstart_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, help="every stage's seed (default: the recipe's)")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of a summary")
     _workers_arg(p, default=available_cores())
+    _compute_args(p)
 
 
 @command(
@@ -532,7 +560,7 @@ def _quickstart(args: argparse.Namespace) -> dict | None:
         "seed": args.seed,
     }
     recipe = with_overrides(load_recipe(args.recipe), {k: v for k, v in changes.items() if v is not None})
-    result = quickstart(args.out, recipe, workers=_workers(args))
+    result = quickstart(args.out, recipe, workers=_workers(args), compute=_compute(args))
     if not args.json:
         print(effects_text(result))
         return None

@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
+from base_suites.runtime.compute import ComputeConfig
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.jobs import Workers
 from base_suites.runtime.locks import output_lock
@@ -45,10 +46,17 @@ def _pooled(summaries: list[dict[str, Any]]) -> dict[str, float]:
     }
 
 
-def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int | Workers = 1) -> dict[str, Any]:
+def run_chain(
+    out: str,
+    config: ChainConfig,
+    progress: bool = True,
+    workers: int | Workers = 1,
+    compute: ComputeConfig | None = None,
+) -> dict[str, Any]:
     """Run (or continue) the chain in directory `out`, its episodes (demos, annotation replays, rollouts,
     evaluations) on `workers` processes side by side: a run control, not a setting (the numbers do not
-    depend on it), so a chain may be continued with another count.
+    depend on it), so a chain may be continued with another count. `compute`: where the policy and the
+    critics train and score (`ComputeConfig`); its stages resume on the same kind of device only.
 
     Returns {mode: pooled success_rate, esr, interventions_per_episode}, per_suite {suite: {mode: the
     same}}, per_task {suite: {mode: the run summary's per-task rows}}, report (the path of the comparison
@@ -56,10 +64,12 @@ def run_chain(out: str, config: ChainConfig, progress: bool = True, workers: int
     writing `out` at the same time is refused (`base_suites.runtime.locks`).
     """
     with output_lock(out):
-        return _run_chain(out, config, progress, workers)
+        return _run_chain(out, config, progress, workers, compute or ComputeConfig())
 
 
-def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int | Workers) -> dict[str, Any]:
+def _run_chain(
+    out: str, config: ChainConfig, progress: bool, workers: int | Workers, compute: ComputeConfig
+) -> dict[str, Any]:
     """`run_chain`'s work, with the chain directory's lock held."""
     from annotations import annotate_file
     from annotations.collect import collect_demos
@@ -115,6 +125,7 @@ def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int | Wor
             successful_only=cfg.successful_only,
             resume=True,
             progress=progress,
+            compute=compute,
         )
     needs_critic = any(m != "base" for m in cfg.modes)  # base alone (the policy benchmark) only logs its scores
     critic_data = list(annotated.values())
@@ -143,7 +154,7 @@ def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int | Wor
                 else ""
             )
             say(f"train critic{which}: Cal-QL, {training.steps} steps")
-            train_critic(critic_data, critic_dir, training, resume=True, progress=progress)
+            train_critic(critic_data, critic_dir, training, resume=True, progress=progress, compute=compute)
     critic = ",".join(critic_dirs) if needs_critic else None
     gates = {s: None for s in cfg.suites}
     if cfg.jiti_gate and "jiti" in cfg.modes:
@@ -164,6 +175,7 @@ def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int | Wor
                     resume=True,
                     progress=progress,
                     workers=workers,
+                    compute=compute,
                 )
             gates[suite] = os.path.join(out, f"gate_{suite}.json")
             # derived again from the same validation runs on every resume: the same file
@@ -183,6 +195,7 @@ def _run_chain(out: str, config: ChainConfig, progress: bool, workers: int | Wor
                 resume=True,
                 progress=progress,
                 workers=workers,
+                compute=compute,
             )
     report_dir = os.path.join(out, "report")
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)
@@ -245,7 +258,11 @@ def effects_text(result: dict[str, Any]) -> str:
 
 
 def quickstart(
-    out: str = "runs/quickstart", config: ChainConfig | None = None, progress: bool = True, workers: int | Workers = 1
+    out: str = "runs/quickstart",
+    config: ChainConfig | None = None,
+    progress: bool = True,
+    workers: int | Workers = 1,
+    compute: ComputeConfig | None = None,
 ) -> dict[str, Any]:
     """The README's first command: the chain with the recipe configs/quickstart.yaml (or `config`)."""
-    return run_chain(out, config or load_recipe("quickstart"), progress=progress, workers=workers)
+    return run_chain(out, config or load_recipe("quickstart"), progress=progress, workers=workers, compute=compute)

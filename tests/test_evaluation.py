@@ -242,6 +242,7 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     """Each JITI setting has its own `elegant eval` flag and reaches `evaluate` under its own name; a flag
     left out is not passed, so the run keeps JITI's default."""
     import elegant.evaluation.runner
+    from base_suites.runtime.compute import ComputeConfig
     from elegant.cli import main
     from elegant.intervention.config import JITIConfig
 
@@ -267,10 +268,19 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
         "out": str(tmp_path / "run"),
         "resume": False,
         "workers": Workers(1),
+        "compute": ComputeConfig(),
         **{name: value for name, (_, _, value) in flags.items()},
     }
     assert main(common + ["--min-gain", "0.05"]) == 0  # a setting left out is not passed: the config's default holds
-    assert calls[-1] == {"out": str(tmp_path / "run"), "resume": False, "workers": Workers(1), "min_gain": 0.05}
+    assert calls[-1] == {
+        "out": str(tmp_path / "run"),
+        "resume": False,
+        "workers": Workers(1),
+        "compute": ComputeConfig(),
+        "min_gain": 0.05,
+    }
+    assert main(common + ["--device", "cpu", "--threads", "2"]) == 0
+    assert calls[-1]["compute"] == ComputeConfig(device="cpu", threads=2)
     assert main(common + ["--policy-act", "sample", "--init-states", "0-2,5", "--mode", "base"]) == 0
     assert calls[-1]["policy_act"] == "sample" and calls[-1]["init_states"] == (0, 1, 2, 5)
     assert calls[-1]["mode"] == "base"

@@ -148,8 +148,9 @@ def test_cli_refuses_in_one_line(demos, tmp_path, capsys):
     assert err.count("\n") == 1 and "eval_every must be a positive integer" in err
 
 
-def test_cli_hands_the_worker_count_to_the_evaluations(demos, tmp_path, monkeypatch):
+def test_cli_hands_the_worker_count_and_the_device_to_the_run(demos, tmp_path, monkeypatch):
     import elegant.evaluation.lifelong
+    from base_suites.runtime.compute import ComputeConfig
 
     seen = {}
     monkeypatch.setattr(
@@ -161,7 +162,9 @@ def test_cli_hands_the_worker_count_to_the_evaluations(demos, tmp_path, monkeypa
         main(["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "w"), "--workers", "2"])
         == 0
     )
-    assert seen["workers"] == Workers(2)
+    assert seen["workers"] == Workers(2) and seen["compute"] == ComputeConfig()
+    args = ["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(tmp_path / "w"), "--device", "cpu"]
+    assert main(args) == 0 and seen["compute"] == ComputeConfig(device="cpu")
 
 
 def test_a_run_from_before_the_mixture_size_setting_resumes_with_its_five_components(demos, tmp_path):

@@ -275,6 +275,7 @@ def test_a_chain_with_critic_members_trains_each_on_its_resample_and_judges_with
 def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(monkeypatch, tmp_path):
     """`elegant quickstart` hands the recipe configs/quickstart.yaml (chunked policy, branch rollouts, outcome
     critic, steered JITI) to the chain with the flags it was given, on one worker per core unless told otherwise."""
+    from base_suites.runtime.compute import ComputeConfig
     from base_suites.runtime.jobs import Workers, available_cores
     from elegant import cli, pipeline
     from elegant.chain_config import load_recipe
@@ -283,11 +284,14 @@ def test_the_quickstart_command_runs_the_recipe_on_every_core_with_its_flags(mon
     monkeypatch.setattr(
         pipeline,
         "run_chain",
-        lambda out, config, progress, workers: calls.append((out, config, workers)) or {"effects": {}, "report": "r"},
+        lambda out, config, progress, workers, compute: (
+            calls.append((out, config, workers, compute)) or {"effects": {}, "report": "r"}
+        ),
     )
     assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--task", "3", "--seed", "2"]) == 0
-    assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--workers", "1"]) == 0
-    (out, config, workers), (_, plain, one) = calls
+    assert cli.main(["quickstart", "--out", str(tmp_path / "qs"), "--workers", "1", "--threads", "2"]) == 0
+    (out, config, workers, compute), (_, plain, one, two_threads) = calls
+    assert compute == ComputeConfig() and two_threads == ComputeConfig(threads=2)
     recipe = load_recipe("quickstart")
     assert (
         out == str(tmp_path / "qs") and (workers, one) == (Workers(available_cores()), Workers(1)) and plain == recipe

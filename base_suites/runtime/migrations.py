@@ -22,6 +22,7 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
         "init_states": None,
         "policy_act": "mode",
         "candidate_source": SAME_AS_NOW,
+        "device": "cpu",
         "jiti": {
             "chunk": 1,
             "random_rate": SAME_AS_NOW,

@@ -46,6 +46,7 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import get_task
+from base_suites.runtime.compute import ComputeConfig
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
@@ -75,6 +76,7 @@ class _Run:
     features: BCFeatures
     status: Callable[[str], None]
     workers: int | Workers = 1  # processes per evaluation (a run control, not a setting: results do not depend on it)
+    compute: ComputeConfig = field(default_factory=ComputeConfig)  # where the stages train and score
     kept: list[str] = field(default_factory=list)
 
     def stage_dir(self, k: int) -> str:
@@ -100,6 +102,7 @@ def train_stage_sequential(run: _Run, k: int) -> None:
         successful_only=False,
         resume=True,
         progress=False,
+        compute=run.compute,
         on_epoch_end=lambda info: run.status(
             f"{cfg['task_keys'][k]}: epoch {info['epoch']}/{cfg['epochs']}, nll {info['nll']:.3f}"
         ),
@@ -155,6 +158,7 @@ def _evaluate(run: _Run, policy: str, tasks: list[int], run_dir: Path) -> dict[s
         resume=True,
         progress=False,
         workers=run.workers,
+        compute=run.compute,
         mode="base",
         episodes=cfg["episodes"],
         seed=cfg["seed"],
@@ -204,6 +208,7 @@ def run_lifelong(
     progress: bool = True,
     resume: bool = False,
     workers: int | Workers = 1,
+    compute: ComputeConfig | None = None,
     **settings: Any,
 ) -> dict[str, Any]:
     """Learn `tasks` of `suite` in order with sequential fine-tuning and measure LIBERO's lifelong metrics.
@@ -212,7 +217,8 @@ def run_lifelong(
     from the demos with its task key. The settings are `config`'s (default: `LifelongConfig`'s), with
     keyword `settings` naming its fields overriding it: epochs per task, evaluating the current task every
     `eval_every` epochs and before training on it, episodes per evaluation, seed, max_steps, the policy's
-    mixture components. `workers`: processes running each evaluation's episodes (`elegant.evaluate`).
+    mixture components. `workers`: processes running each evaluation's episodes (`elegant.evaluate`);
+    `compute`: where the stages train and the evaluations score (`ComputeConfig`).
     Writes OUT as the module docstring describes and returns the content of OUT/lifelong.json.
     """
     cfg = with_overrides(config or LifelongConfig(), settings, "lifelong")
@@ -251,7 +257,7 @@ def run_lifelong(
         S = np.full((2, K, K), np.nan)
         kept_epochs = []
         with tqdm(total=K, desc="lifelong", unit="task", disable=not progress) as bar:
-            run = _Run(out, config, paths, features, bar.set_postfix_str, workers)
+            run = _Run(out, config, paths, features, bar.set_postfix_str, workers, compute or ComputeConfig())
             for k in range(K):
                 kept_epochs.append(_learn_and_measure(run, k, C, S))
                 bar.update(1)

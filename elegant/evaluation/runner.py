@@ -36,6 +36,7 @@ from tqdm import tqdm
 from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
 from base_suites.rollout import run_episode
+from base_suites.runtime.compute import ComputeConfig, device_kind, resolve_device
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file, with_added_settings
 from base_suites.runtime.jobs import Workers, check_picklable, check_workers, run_jobs
 from base_suites.runtime.locks import output_lock
@@ -103,15 +104,20 @@ def open_critic(critic: Any) -> Any:
     return critic
 
 
-def build_agent(policy: Any, critic: Any, config: EvalConfig) -> JITI:
+def build_agent(policy: Any, critic: Any, config: EvalConfig, device: str = "cpu") -> JITI:
     """The evaluated agent: `policy` (acting as `config.policy_act` says) and `critic` opened (directories
-    or objects) and wrapped in JITI with `config.jiti`, seeded by the run's seed."""
-    return JITI(
-        open_policy(policy, config.policy_act, replan_steps=config.replan_steps),
-        open_critic(critic),
-        config.jiti,
-        seed=config.seed,
-    )
+    or objects) and wrapped in JITI with `config.jiti`, seeded by the run's seed. On another `device` than
+    the CPU, a BC policy and the critic score there (`BCPolicy.to`, `Critic.to`); other policies decide
+    where they run themselves."""
+    from elegant.policies.bc_policy import BCPolicy
+
+    opened, scorer = open_policy(policy, config.policy_act, replan_steps=config.replan_steps), open_critic(critic)
+    if device != "cpu":
+        if isinstance(opened, BCPolicy):
+            opened.to(device)
+        if scorer is not None:
+            scorer.to(device)
+    return JITI(opened, scorer, config.jiti, seed=config.seed)
 
 
 def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
@@ -181,6 +187,7 @@ def evaluate(
     resume: bool = False,
     workers: int | Workers = 1,
     progress: bool = True,
+    compute: ComputeConfig | None = None,
     **settings: Any,
 ) -> dict[str, Any]:
     """Evaluate `policy` (a directory or a callable) wrapped in JITI with `critic` (a directory, a critic
@@ -190,13 +197,16 @@ def evaluate(
     `EvalConfig` or `JITIConfig` fields overriding it (`evaluate(..., mode="base", episodes=50)`); see
     each field's help. `workers`: processes running episodes side by side (`base_suites.runtime.jobs`);
     the numbers do not depend on it, and with more than one the policy and critic must be directories or
-    picklable.
+    picklable. `compute`: where the BC policy and the critic score (`ComputeConfig`; default: a GPU when
+    torch sees one); the run records the kind of device, and resumes only on the same kind.
 
     Writes the run directory `out` (see the module docstring) and returns the summary dict: config,
     episodes, success_rate, esr, itc_violation_rate (per criterion), interventions_per_episode,
     overrides_per_episode, steps_per_episode, decision_time, env_step_time, decision_overhead, per_task.
     """
     cfg = (config or EvalConfig()).with_settings(**settings)
+    compute = compute or ComputeConfig()
+    compute.validate("eval")
     check_output(out, "dir", resume=resume, results=("config.json", "episodes.jsonl"))
     if critic is not None and cfg.obs == "rgb":
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
@@ -215,7 +225,8 @@ def evaluate(
     workers = check_workers(workers)
     if not workers.in_process:
         check_picklable((policy, critic), "the policy or the critic")
-    agent = build_agent(policy, critic, cfg)
+    device = resolve_device(compute.device, "eval")
+    agent = build_agent(policy, critic, cfg, str(device))
     chosen = None if cfg.init_states is None else sorted({int(i) for i in cfg.init_states})
     described = {
         "policy": describe_policy(policy),
@@ -241,6 +252,7 @@ def evaluate(
         "max_steps": cfg.max_steps,
         "obs": cfg.obs,
         "init_states": chosen,
+        "device": device_kind(device),
         **({} if cfg.replan_steps is None else {"replan_steps": cfg.replan_steps}),
         **({} if task_modes is None else {"gate": {"file": os.path.abspath(cfg.gate), "modes": task_modes}}),
     }
@@ -258,9 +270,8 @@ def evaluate(
             if (task_key(suite, index), e) not in done
         ]
         # the agent built here serves a serial run; worker processes each build their own from the same inputs
-        make_worker = partial(
-            EpisodeRunner, agent if workers.in_process else partial(build_agent, policy, critic, cfg), record
-        )
+        build = partial(build_agent, policy, critic, cfg, str(device))
+        make_worker = partial(EpisodeRunner, agent if workers.in_process else build, record)
         try:
             total = len(indices) * int(cfg.episodes)
             with tqdm(

@@ -34,8 +34,9 @@ def torch_bytes(obj: Any) -> bytes:
 
 
 def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, Any], training: dict[str, Any]) -> None:
-    """Publish the final policy in `out` (model.pt first; config.json, which vouches for it, last)."""
-    payload = torch_bytes(net.state_dict())
+    """Publish the final policy in `out` (model.pt first; config.json, which vouches for it, last). The
+    weights are saved from the CPU, so a policy trained on a GPU loads anywhere."""
+    payload = torch_bytes({k: v.detach().cpu() for k, v in net.state_dict().items()})
     atomic_write(os.path.join(out, MODEL_FILE), payload)
     config = {
         "format": ARTIFACT_FORMAT,
@@ -78,7 +79,7 @@ def read_artifact(path: str) -> tuple[BCNet, BCFeatures, dict[str, Any]]:
             min_std=spec["min_std"],
             task_dim=spec["task_dim"],
         )
-        net.load_state_dict(torch.load(io.BytesIO(payload), weights_only=True))
+        net.load_state_dict(torch.load(io.BytesIO(payload), map_location="cpu", weights_only=True))
     except KeyError as exc:
         raise UserInputError(f"{config_path}: missing field {exc.args[0]!r}") from None
     except (RuntimeError, TypeError, ValueError) as exc:

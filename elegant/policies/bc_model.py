@@ -68,7 +68,7 @@ def gmm_sample(
 ) -> torch.Tensor:
     """Draw n actions (n, A) from the mixture of a single row (logits (1, K)), clipped to [-1, 1]."""
     component = gmm_draw_components(logits, n, generator)
-    noise = torch.randn((n, means.shape[-1]), generator=generator, dtype=means.dtype)
+    noise = torch.randn((n, means.shape[-1]), generator=generator, dtype=means.dtype, device=means.device)
     return (means[0, component] + stds[0, component] * noise).clamp(-1.0, 1.0)
 
 

@@ -75,6 +75,8 @@ class BCPolicy(ExecutesPlans):
         self.path = path
         self.config = dict(config or {})
         self.chunk = int(self.config.get("model", {}).get("chunk", 1))
+        self.device = torch.device("cpu")
+        self._seed = seed
         self.generator = torch.Generator()
         self._act_generator = torch.Generator()
         self._window: deque[np.ndarray] = deque(maxlen=features.history)
@@ -98,8 +100,20 @@ class BCPolicy(ExecutesPlans):
         else:
             self.task = None
         if seed is not None:
+            self._seed = int(seed)
             self.generator.manual_seed(int(seed))
             self._act_generator.manual_seed(int(seed) + _ACT_STREAM)
+
+    def to(self, device: str | torch.device) -> BCPolicy:
+        """Run the network and the draws on `device` from now on (the CPU by default). A GPU draws from its
+        own generators, seeded alike, so its candidates differ from the CPU's: a run records its device."""
+        self.device = torch.device(device)
+        self.net.to(self.device)
+        self.generator = torch.Generator(self.device)
+        self._act_generator = torch.Generator(self.device)
+        self.generator.manual_seed(self._seed)
+        self._act_generator.manual_seed(self._seed + _ACT_STREAM)
+        return self
 
     def _state(self, obs: Observation) -> np.ndarray:
         if "state" not in obs:
@@ -126,7 +140,7 @@ class BCPolicy(ExecutesPlans):
         self._last_state = state.copy()
 
     def _distribution(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        window = torch.from_numpy(np.stack(self._window)).unsqueeze(0)
+        window = torch.from_numpy(np.stack(self._window)).unsqueeze(0).to(self.device)
         return self.net(self.features.flatten_window(window))
 
     def _see(self, obs: Observation) -> None:
@@ -151,7 +165,7 @@ class BCPolicy(ExecutesPlans):
                 action = gmm_component_means(logits, means, 1, self._act_generator)[0]
             else:
                 action = gmm_mode(logits, means)[0]
-            return action.double().numpy().reshape(self.chunk, ACTION_DIM)
+            return action.cpu().double().numpy().reshape(self.chunk, ACTION_DIM)
 
     def sample_plans(self, obs: Observation, n: int) -> np.ndarray:
         """n chunks (n, chunk, 7) drawn from the mixture for the decision at `obs`; does not step the history
@@ -161,7 +175,11 @@ class BCPolicy(ExecutesPlans):
         with torch.inference_mode():
             logits, means, stds = self._distribution()
             return (
-                gmm_sample(logits, means, stds, n, self.generator).double().numpy().reshape(n, self.chunk, ACTION_DIM)
+                gmm_sample(logits, means, stds, n, self.generator)
+                .cpu()
+                .double()
+                .numpy()
+                .reshape(n, self.chunk, ACTION_DIM)
             )
 
     def sample(self, obs: Observation, n: int) -> np.ndarray:

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from base_suites.runtime.compute import ComputeConfig, device_kind, refuse_other_device, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields
 from base_suites.runtime.locks import output_lock
@@ -96,7 +97,7 @@ def _save_checkpoint(path: str, state: dict[str, Any]) -> None:
 
 def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
     try:
-        state = torch.load(path, weights_only=True)
+        state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # a truncated or foreign file surfaces as many exception types
         raise UserInputError(
             f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume"
@@ -199,6 +200,7 @@ def train_policy(
     overwrite: bool = False,
     progress: bool = True,
     on_epoch_end: Callable[[dict[str, Any]], None] | None = None,
+    compute: ComputeConfig | None = None,
     **settings: Any,
 ) -> dict[str, Any]:
     """Train a BC-GMM policy on the demos in `paths` and write it to the directory `out`.
@@ -214,11 +216,15 @@ def train_policy(
     Returns a dict: out, epochs, resumed_from_epoch, loss_history (mean training NLL per epoch), final_nll,
     num_demos, num_samples, tasks, seconds. `on_epoch_end` receives {"epoch", "nll"} after each epoch's
     checkpoint is on disk (for logging; an exception raised there stops training like a crash would).
+    compute: the device and CPU threads (`ComputeConfig`; default: a GPU when torch sees one). Batches and
+    their observation noise are drawn on the CPU on every device; a checkpoint resumes on the kind of device
+    it was written on only.
     """
     cfg = with_overrides(config or BCConfig(), settings, "train_policy")
     tune = fine_tuning or FineTuning()
     tasks, features, init_from, snapshot_epochs = tune.tasks, tune.features, tune.init_from, tune.snapshot_epochs
     cfg.validate()
+    device = use_compute(compute or ComputeConfig(), "train-policy")
     snapshots = set(snapshot_epochs)
     if any(int(e) != e or not 0 <= e <= cfg.epochs for e in snapshots):
         raise UserInputError(
@@ -259,6 +265,7 @@ def train_policy(
         )
     if init is not None:
         _start_from(net, init, model_spec, init_from)
+    net.to(device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps_per_epoch = math.ceil(len(windows) / cfg.batch_size)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=cfg.epochs * steps_per_epoch)
@@ -271,6 +278,7 @@ def train_policy(
         if overwrite:  # the earlier run's policy and checkpoint go before this run writes its own
             remove_results(out, (CHECKPOINT_FILE, MODEL_FILE))
         fingerprint = {"config": asdict(cfg), "data": data.files, **origin}
+        kind = device_kind(device)
 
         def publish(directory: str) -> None:
             """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
@@ -282,12 +290,14 @@ def train_policy(
                 "num_samples": len(windows),
                 **origin,
                 "init_from_path": None if init_from is None else os.path.abspath(init_from),
+                "device": kind,
             }
             write_artifact(directory, net, features, model_spec, training)
 
         start_epoch = 0
         if resume and os.path.exists(checkpoint):
             state = _load_checkpoint(checkpoint, fingerprint)
+            refuse_other_device(checkpoint, state.get("device", "cpu"), device)
             net.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
             scheduler.load_state_dict(state["scheduler"])
@@ -307,7 +317,7 @@ def train_policy(
         for epoch in range(start_epoch, cfg.epochs):
             total = 0.0
             for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
-                x, actions = windows.batch(index, cfg.obs_noise, generator)
+                x, actions = (t.to(device) for t in windows.batch(index, cfg.obs_noise, generator))
                 loss = net.nll(x, actions).mean()
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
@@ -332,6 +342,7 @@ def train_policy(
                     "generator": generator.get_state(),
                     "losses": losses,
                     "fingerprint": fingerprint,
+                    "device": kind,
                 },
             )
             if on_epoch_end is not None:
@@ -349,6 +360,7 @@ def train_policy(
             "num_samples": len(windows),
             "tasks": list(features.encoder.tasks),
             "seconds": time.perf_counter() - started,
+            "device": kind,
         }
         publish(out)
         return result
