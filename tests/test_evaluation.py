@@ -233,9 +233,20 @@ def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(run
     assert "random_rate" not in config["jiti"]  # a jiti run records only the settings mode jiti uses
     del config["init_states"], config["jiti"]["chunk"], config["policy_act"]
     del config["format"]  # runs from before the schema had none
+    assert config["device"] == "cpu"
+    del config["device"]  # ... nor a device: they scored on the CPU
     config["jiti"]["random_rate"] = 0.3  # runs once recorded every JITI setting, used by their mode or not
     (out / "config.json").write_text(json.dumps(config))
     assert run(out, resume=True)["episodes"] == 2
+
+
+def test_a_run_resumes_only_on_the_kind_of_device_it_scored_on(runs):
+    out = runs["root"] / "on_a_gpu"
+    shutil.copytree(runs["root"] / "full", out)
+    config = json.loads((out / "config.json").read_text())
+    (out / "config.json").write_text(json.dumps({**config, "device": "cuda (NVIDIA H100 80GB HBM3)"}))
+    with pytest.raises(UserInputError, match="field 'device' is 'cuda .*' but this run has 'cpu'"):
+        run(out, resume=True)
 
 
 def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_path):
