@@ -58,7 +58,7 @@ class _Run:
         # initialised on the CPU on every device, so a GPU run starts from the CPU run's weights
         critic = TwinQNetwork(data.obs_dim, data.action_dim, cfg.hidden)
         actor = TanhGaussianActor(data.obs_dim, data.action_dim, cfg.hidden)
-        self.device = device
+        self.device, self.device_kind = device, device_kind(device)
         self.loss = CalQLLoss(
             actor,
             critic,
@@ -130,7 +130,7 @@ class _Run:
             "sampler_rng": self.generator.get_state(),
             # the policy's action draws come from the GPU's generator on a GPU
             "cuda_rng": torch.cuda.get_rng_state(self.device) if self.device.type == "cuda" else None,
-            "device": device_kind(self.device),
+            "device": self.device_kind,
             "versions": library_versions(),
         }
 
@@ -282,7 +282,7 @@ def train_critic(
                 **asdict(cfg),
                 "fingerprint": fingerprint,
                 "transitions": len(data.transitions),
-                "device": device_kind(device),
+                "device": run.device_kind,
             },
         )
         trained = max(cfg.steps - start, 0)
@@ -296,6 +296,6 @@ def train_critic(
             "gamma": data.gamma,
             "seconds": seconds,
             "steps_per_second": trained / seconds if trained and seconds > 0 else None,
-            "device": device_kind(device),
+            "device": run.device_kind,
             "final": last,
         }

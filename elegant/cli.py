@@ -142,13 +142,11 @@ def _compute_args(p: argparse.ArgumentParser) -> None:
 
 
 def _compute(args: argparse.Namespace) -> Any:
-    """The `ComputeConfig` the options name, refused in one line if malformed (before any work)."""
+    """The `ComputeConfig` the options name (each command refuses a malformed one before any work)."""
     from base_suites.runtime.compute import ComputeConfig
     from base_suites.runtime.settings import settings_from_args
 
-    config = ComputeConfig(**settings_from_args(args, ComputeConfig))
-    config.validate(args.command)
-    return config
+    return ComputeConfig(**settings_from_args(args, ComputeConfig))
 
 
 def _overwrite_arg(p: argparse.ArgumentParser) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 from typing import Any
 
-from base_suites.runtime.compute import ComputeConfig
+from base_suites.runtime.compute import ComputeConfig, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.jobs import Workers
 from base_suites.runtime.locks import output_lock
@@ -63,8 +63,10 @@ def run_chain(
     markdown), runs ({mode: {suite: run directory}}), effects (`chain_effects` per suite). A second chain
     writing `out` at the same time is refused (`base_suites.runtime.locks`).
     """
+    compute = compute or ComputeConfig()
+    use_compute(compute, "chain")  # a device that is not there is refused before the first stage runs
     with output_lock(out):
-        return _run_chain(out, config, progress, workers, compute or ComputeConfig())
+        return _run_chain(out, config, progress, workers, compute)
 
 
 def _run_chain(

@@ -4,8 +4,8 @@
 `ComputeConfig` is torch-free, so the CLI builds its options without loading torch; `use_compute` applies
 it in the process that trains or scores and returns the torch device. It is not part of what determines an
 experiment's numbers on one kind of device, and a GPU's numbers differ from the CPU's in rounding only;
-runs record the kind of device they used (`device_kind`) and refuse to resume on another. The default
-of one CPU thread also keeps a run's numbers the same on machines with different core counts.
+runs record the kind of device they used (`device_kind`) and refuse to resume on another. The CPU
+thread count is a run control: it changes speed, not the numbers (tests/test_compute.py).
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import get_task
-from base_suites.runtime.compute import ComputeConfig
+from base_suites.runtime.compute import ComputeConfig, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
@@ -222,6 +222,8 @@ def run_lifelong(
     Writes OUT as the module docstring describes and returns the content of OUT/lifelong.json.
     """
     cfg = with_overrides(config or LifelongConfig(), settings, "lifelong")
+    compute = compute or ComputeConfig()
+    use_compute(compute, "lifelong")  # a device that is not there is refused before the first stage trains
     epochs, eval_every, episodes, seed = cfg.epochs, cfg.eval_every, cfg.episodes, cfg.seed
     max_steps, modes = cfg.max_steps, cfg.modes
     workers = check_workers(workers)
@@ -257,7 +259,7 @@ def run_lifelong(
         S = np.full((2, K, K), np.nan)
         kept_epochs = []
         with tqdm(total=K, desc="lifelong", unit="task", disable=not progress) as bar:
-            run = _Run(out, config, paths, features, bar.set_postfix_str, workers, compute or ComputeConfig())
+            run = _Run(out, config, paths, features, bar.set_postfix_str, workers, compute)
             for k in range(K):
                 kept_epochs.append(_learn_and_measure(run, k, C, S))
                 bar.update(1)

@@ -36,7 +36,7 @@ from tqdm import tqdm
 from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
 from base_suites.rollout import run_episode
-from base_suites.runtime.compute import ComputeConfig, device_kind, resolve_device
+from base_suites.runtime.compute import ComputeConfig, device_kind, use_compute
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file, with_added_settings
 from base_suites.runtime.jobs import Workers, check_picklable, check_workers, run_jobs
 from base_suites.runtime.locks import output_lock
@@ -205,8 +205,7 @@ def evaluate(
     overrides_per_episode, steps_per_episode, decision_time, env_step_time, decision_overhead, per_task.
     """
     cfg = (config or EvalConfig()).with_settings(**settings)
-    compute = compute or ComputeConfig()
-    compute.validate("eval")
+    device = use_compute(compute or ComputeConfig(), "eval")  # before any work: a GPU that is not there
     check_output(out, "dir", resume=resume, results=("config.json", "episodes.jsonl"))
     if critic is not None and cfg.obs == "rgb":
         raise UserInputError("obs='rgb' has no 'state' for the critic: use obs='both' (or 'lowdim') with a critic")
@@ -225,7 +224,6 @@ def evaluate(
     workers = check_workers(workers)
     if not workers.in_process:
         check_picklable((policy, critic), "the policy or the critic")
-    device = resolve_device(compute.device, "eval")
     agent = build_agent(policy, critic, cfg, str(device))
     chosen = None if cfg.init_states is None else sorted({int(i) for i in cfg.init_states})
     described = {

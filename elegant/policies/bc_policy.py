@@ -76,7 +76,6 @@ class BCPolicy(ExecutesPlans):
         self.config = dict(config or {})
         self.chunk = int(self.config.get("model", {}).get("chunk", 1))
         self.device = torch.device("cpu")
-        self._seed = seed
         self.generator = torch.Generator()
         self._act_generator = torch.Generator()
         self._window: deque[np.ndarray] = deque(maxlen=features.history)
@@ -100,9 +99,13 @@ class BCPolicy(ExecutesPlans):
         else:
             self.task = None
         if seed is not None:
-            self._seed = int(seed)
-            self.generator.manual_seed(int(seed))
-            self._act_generator.manual_seed(int(seed) + _ACT_STREAM)
+            self._seed_generators(int(seed))
+
+    def _seed_generators(self, seed: int) -> None:
+        """Restart the candidates' and the execution's streams from `seed` (kept for `to`)."""
+        self._seed = seed
+        self.generator.manual_seed(seed)
+        self._act_generator.manual_seed(seed + _ACT_STREAM)
 
     def to(self, device: str | torch.device) -> BCPolicy:
         """Run the network and the draws on `device` from now on (the CPU by default). A GPU draws from its
@@ -111,8 +114,7 @@ class BCPolicy(ExecutesPlans):
         self.net.to(self.device)
         self.generator = torch.Generator(self.device)
         self._act_generator = torch.Generator(self.device)
-        self.generator.manual_seed(self._seed)
-        self._act_generator.manual_seed(self._seed + _ACT_STREAM)
+        self._seed_generators(self._seed)
         return self
 
     def _state(self, obs: Observation) -> np.ndarray:
