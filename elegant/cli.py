@@ -492,7 +492,8 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
 
 
 @command(
-    "lifelong", "LIBERO's lifelong protocol (sequential fine-tuning): FWT, NBT, AUC from success and elegant success"
+    "lifelong",
+    "LIBERO's lifelong protocol (SeqL, ER, EWC, PackNet, multitask): FWT, NBT, AUC from success and from ESR",
 )(_lifelong_args)
 def _lifelong(args: argparse.Namespace) -> dict:
     from base_suites.runtime.settings import settings_from_args

@@ -54,7 +54,9 @@ def test_matrices_metrics_and_files(run):
     S_el, C_el = np.array(result["S_elegant"], dtype=float), np.array(result["C_elegant"], dtype=float)
     assert S.shape == S_el.shape == (2, 2) and C.shape == C_el.shape == (2, 3)
     assert result["S"][0][1] is None and not np.isnan(S[np.tril_indices(2)]).any()
-    assert result["metrics"] == lifelong_metrics(S, C) and result["metrics_elegant"] == lifelong_metrics(S_el, C_el)
+    kept = [int(np.argmax(row)) for row in C]
+    assert result["metrics"] == {**lifelong_metrics(S, C), "final_success": S[1].mean()}
+    assert result["metrics_elegant"] == {**lifelong_metrics(S_el, C_el, kept), "final_success": S_el[1].mean()}
     assert result["config"]["eval_epochs"] == [0, 1, 2]
     for k in range(2):  # the kept checkpoint is the first best of the learning curve, and S[k, k] is its success
         best = int(np.argmax(C[k]))
@@ -167,11 +169,13 @@ def test_cli_hands_the_worker_count_and_the_device_to_the_run(demos, tmp_path, m
     assert main(args) == 0 and seen["compute"] == ComputeConfig(device="cpu")
 
 
-def test_a_run_from_before_the_mixture_size_setting_resumes_with_its_five_components(demos, tmp_path):
+def test_a_run_from_before_the_mixture_size_setting_and_the_other_algorithms_resumes(demos, tmp_path):
     out = tmp_path / "old"
     result = run_lifelong(SUITE, TASKS, [demos], out, **{**SETTINGS, "modes": 5})
     config = json.loads((out / "config.json").read_text())
     del config["modes"]  # as written before `modes` was recorded, when every run used 5
+    del config["algorithm_settings"]  # ... and before the other algorithms, when SeqL was "sequential"
+    config["algorithm"] = "sequential"
     (out / "config.json").write_text(json.dumps(config))
     with pytest.raises(UserInputError, match="field 'modes' is 5 but this run has 16"):
         run_lifelong(SUITE, TASKS, [demos], out, resume=True, **SETTINGS)
@@ -179,3 +183,93 @@ def test_a_run_from_before_the_mixture_size_setting_resumes_with_its_five_compon
         run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "modes": 5})["metrics"]
         == result["metrics"]
     )
+
+
+# ---- the other algorithms: each on the same tiny real run -----------------------------------------------
+
+
+def run_algorithm(demos, out, algo: str, **extra) -> dict:
+    return run_lifelong(SUITE, TASKS, [demos], out, **{**SETTINGS, **extra}, algo=algo)
+
+
+def training(policy_dir) -> dict:
+    return json.loads((policy_dir / "config.json").read_text())["training"]
+
+
+def test_er_replays_the_first_task_while_learning_the_second(demos, tmp_path):
+    from elegant.policies.bc_data import load_demos
+    from elegant.policies.continual import memory_digest, replay_memory
+
+    out = tmp_path / "er"
+    result = run_algorithm(demos, out, "er", er_memory=3)
+    assert result["config"]["algorithm_settings"] == {"er_memory": 3}
+    assert training(out / "stages" / "task_0")["continual"] is None
+    memory = replay_memory(load_demos([demos]), ["libero_object/0"], 3)
+    assert training(out / "stages" / "task_1")["continual"]["replay"] == memory_digest(memory)
+
+
+def test_ewc_anchors_each_stage_at_the_network_kept_before_it(demos, tmp_path):
+    from elegant.policies.continual import ElasticAnchor
+
+    out = tmp_path / "ewc"
+    result = run_algorithm(demos, out, "ewc")
+    assert result["config"]["algorithm_settings"] == {"ewc_lambda": 5e4, "ewc_gamma": 0.9}
+    anchor = ElasticAnchor.load(str(out / "stages" / "task_0" / "ewc_anchor.pt"), 5e4)
+    assert same(anchor.anchor, {k: v for k, v in weights(result["kept_policies"][0]).items()})
+    assert training(out / "stages" / "task_1")["continual"]["anchor"] == anchor.digest()
+    assert (out / "stages" / "task_1" / "ewc_anchor.pt").exists()
+
+
+def test_packnet_keeps_the_first_tasks_weights_and_evaluates_it_with_them(demos, tmp_path):
+    from elegant.policies.continual import WeightMasks
+
+    out = tmp_path / "packnet"
+    result = run_algorithm(demos, out, "packnet", packnet_epochs=2)
+    assert result["config"]["algorithm_settings"] == {"packnet_prune": 0.75, "packnet_epochs": 2}
+    stage1 = out / "stages" / "task_1"
+    assert result["kept_policies"][1].startswith(str(stage1 / "post"))
+    # Stage 1 trained the weights task 0 left free, and no other.
+    after_task_0 = WeightMasks.load(str(out / "stages" / "task_0" / "pruned" / "packnet_masks.pt"), 0)
+    first, trained = weights(result["kept_policies"][0]), weights(stage1)
+    for name, owner in after_task_0.owner.items():
+        assert torch.equal(trained[name][owner == 1], first[name][owner == 1])
+        assert (first[name][owner == 0] == 0).all()
+    assert any(not torch.equal(trained[n][o == 0], first[n][o == 0]) for n, o in after_task_0.owner.items())
+    # Task 0 is evaluated after task 1 with task 0's weights only.
+    masks = WeightMasks.load(str(stage1 / "pruned" / "packnet_masks.pt"), 1)
+    second, for_task_0 = weights(result["kept_policies"][1]), weights(stage1 / "for_task_0")
+    for name, owner in masks.owner.items():
+        assert torch.equal(second[name][owner == 1], first[name][owner == 1])
+        assert torch.equal(for_task_0[name][owner == 1], first[name][owner == 1])
+        assert (for_task_0[name][owner != 1] == 0).all()
+    after = json.loads((out / "evals" / "after_task_1" / "task_0" / "summary.json").read_text())
+    assert after["config"]["policy"] == str(stage1 / "for_task_0")
+    assert result["S"][1][0] == after["per_task"]["libero_object/0"]["success_rate"]
+    for epoch in (0, 1, 2):  # the fine-tuning after pruning is evaluated, and its best checkpoint kept
+        assert (out / "evals" / "task_1" / f"post_epoch_{epoch}" / "summary.json").exists()
+
+
+def test_multitask_learns_all_tasks_at_once_and_fills_the_last_row(demos, tmp_path):
+    out = tmp_path / "multitask"
+    result = run_algorithm(demos, out, "multitask")
+    S, C = np.array(result["S"], dtype=float), np.array(result["C"], dtype=float)
+    assert np.isnan(S[0]).all() and not np.isnan(S[1]).any() and C.shape == (2, 3)
+    best = int(np.argmax(C.mean(axis=0)))
+    assert (S[1] == C[:, best]).all() and result["kept_epochs"] == [best, best]
+    assert result["metrics"]["nbt"] is None and result["metrics"]["auc"] is None
+    assert result["metrics"]["final_success"] == S[1].mean()
+    config = json.loads((out / "stages" / "all_tasks" / "config.json").read_text())
+    assert config["training"]["tasks"] == ["libero_object/0", "libero_object/1"]
+    summary = json.loads((out / "evals" / "all_tasks" / "epoch_0" / "summary.json").read_text())
+    assert summary["config"]["tasks"] == [0, 1]
+    assert "MTL" in (out / "report.md").read_text()
+
+
+def test_an_unknown_algorithm_or_setting_is_refused_before_any_work(demos, tmp_path):
+    with pytest.raises(UserInputError, match="unknown lifelong algorithm 'agem'"):
+        run_algorithm(demos, tmp_path / "a", "agem")
+    with pytest.raises(UserInputError, match="packnet_prune must be in"):
+        run_algorithm(demos, tmp_path / "b", "packnet", packnet_prune=1.0)
+    with pytest.raises(UserInputError, match="packnet_epochs .3. must be a multiple of eval_every"):
+        run_algorithm(demos, tmp_path / "c", "packnet", packnet_epochs=3, eval_every=2)
+    assert not any((tmp_path / d).exists() for d in "abc")

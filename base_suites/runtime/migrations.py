@@ -32,10 +32,12 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
             "warmup": "base",
         },
     },
-    # elegant lifelong's OUT/config.json: before the mixture size was a setting, policies had 5 components
-    "lifelong run": {"format": "libero-elegant-lifelong/1", "modes": 5},
-    # train-policy's checkpoint fingerprint: before the success filter and observation noise
-    "policy checkpoint": {"successful_only": False, "config": {"obs_noise": 0.0}},
+    # elegant lifelong's OUT/config.json: before the mixture size was a setting, policies had 5 components;
+    # before ER, EWC, PackNet and multitask, SeqL had no settings of its own
+    "lifelong run": {"format": "libero-elegant-lifelong/1", "modes": 5, "algorithm_settings": {}},
+    # train-policy's checkpoint fingerprint: before the success filter, observation noise and the lifelong
+    # baselines' mechanisms
+    "policy checkpoint": {"successful_only": False, "config": {"obs_noise": 0.0}, "continual": None},
     # train-critic's checkpoint config
     "critic checkpoint": {
         "chunk": 1,

@@ -4,7 +4,7 @@ JITI's own settings nested as a `JITIConfig` (docs/design.md, configuration)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal, get_args
 
 from base_suites.env import ObsMode
 from base_suites.runtime.errors import UserInputError, unknown_choice
@@ -153,6 +153,10 @@ class RolloutConfig:
         return with_overrides(self, settings, "rollouts")
 
 
+LifelongAlgo = Literal["seql", "er", "ewc", "packnet", "multitask"]
+LIFELONG_ALGOS: tuple[str, ...] = get_args(LifelongAlgo)
+
+
 @dataclass(frozen=True)
 class LifelongConfig:
     """LIBERO's lifelong protocol as `elegant lifelong` runs it (`elegant.evaluation.lifelong`)."""
@@ -163,9 +167,35 @@ class LifelongConfig:
     seed: int = setting(0, "training and evaluation seed")
     max_steps: int | None = setting(None, "episode horizon (default: the suite's)")
     modes: int = setting(DEFAULT_MODES, "components of the policy's GMM head (runs from before this option used 5)")
+    algo: LifelongAlgo = setting(
+        "seql",
+        "LIBERO's lifelong algorithm: sequential fine-tuning, experience replay, elastic weight consolidation, "
+        "PackNet, or multitask training on all tasks at once (the upper bound)",
+    )
+    er_memory: int = setting(1000, "ER: samples kept per earlier task (LIBERO's n_memories)")
+    ewc_lambda: float = setting(5e4, "EWC: weight of the Fisher penalty (LIBERO's e_lambda)")
+    ewc_gamma: float = setting(0.9, "EWC: decay of earlier tasks' Fisher information per new task (LIBERO's gamma)")
+    packnet_prune: float = setting(0.75, "PackNet: fraction of a task's weights pruned after it (LIBERO's prune_perc)")
+    packnet_epochs: int | None = setting(
+        None, "PackNet: fine-tuning epochs after pruning (LIBERO's post_prune_epochs; default: --epochs)"
+    )
 
     def __post_init__(self) -> None:
         self.validate()
+
+    def algorithm_settings(self) -> dict[str, Any]:
+        """The settings of the chosen algorithm only (a run records them; the others do not apply to it)."""
+        fields = {
+            "seql": (),
+            "multitask": (),
+            "er": ("er_memory",),
+            "ewc": ("ewc_lambda", "ewc_gamma"),
+            "packnet": ("packnet_prune", "packnet_epochs"),
+        }[self.algo]
+        settings = {name: getattr(self, name) for name in fields}
+        if self.algo == "packnet" and settings["packnet_epochs"] is None:
+            settings["packnet_epochs"] = self.epochs
+        return settings
 
     def validate(self) -> None:
         """Refuse a non-positive count before any work starts (training comes before the first evaluation),
@@ -178,6 +208,24 @@ class LifelongConfig:
                 raise UserInputError(f"lifelong: {name} must be a positive integer, got {value!r}")
         if not int(self.seed) >= 0:
             raise UserInputError(f"lifelong: seed must be >= 0, got {self.seed}")
+        if self.algo not in LIFELONG_ALGOS:
+            raise unknown_choice("lifelong algorithm", self.algo, LIFELONG_ALGOS)
+        if self.er_memory < 1 or int(self.er_memory) != self.er_memory:
+            raise UserInputError(f"lifelong: er_memory must be a positive integer, got {self.er_memory!r}")
+        if self.packnet_epochs is not None and (
+            int(self.packnet_epochs) != self.packnet_epochs or self.packnet_epochs < 1
+        ):
+            raise UserInputError(f"lifelong: packnet_epochs must be a positive integer, got {self.packnet_epochs!r}")
+        if self.packnet_epochs is not None and self.packnet_epochs % self.eval_every:
+            raise UserInputError(
+                f"lifelong: packnet_epochs ({self.packnet_epochs}) must be a multiple of eval_every ({self.eval_every})"
+            )
+        if not self.ewc_lambda >= 0:
+            raise UserInputError(f"lifelong: ewc_lambda must be >= 0, got {self.ewc_lambda!r}")
+        if not 0 <= self.ewc_gamma <= 1:
+            raise UserInputError(f"lifelong: ewc_gamma must be in [0, 1], got {self.ewc_gamma!r}")
+        if not 0 <= self.packnet_prune < 1:
+            raise UserInputError(f"lifelong: packnet_prune must be in [0, 1), got {self.packnet_prune!r}")
         if self.epochs % self.eval_every:
             raise UserInputError(
                 f"lifelong: epochs ({self.epochs}) must be a multiple of eval_every ({self.eval_every}), "

@@ -1,8 +1,9 @@
 """LIBERO's lifelong-learning protocol (Liu et al. 2023), reported from success and from elegant success.
 
-K tasks of one suite are learned in order by ONE BC-GMM network. The algorithm is sequential fine-tuning
-(LIBERO's "SeqL" baseline): task k starts from the network kept after task k-1. The protocol around it
-follows LIBERO's `Sequential.learn_one_task` and `compute_metric`:
+K tasks of one suite are learned in order by ONE BC-GMM network, with one of LIBERO's algorithms
+(`elegant.evaluation.lifelong_algos`): sequential fine-tuning (SeqL), experience replay (ER), elastic weight
+consolidation (EWC) or PackNet; or by multitask training on all K tasks at once, LIBERO's upper bound.
+The protocol around them follows LIBERO's `Sequential.learn_one_task` and `compute_metric`:
 
 - The input covers all K tasks from the start: the task one-hot is over the K tasks, and each task's
   normalisation statistics are fitted on that task's demos. This needs every task's demos up front (the
@@ -12,20 +13,32 @@ follows LIBERO's `Sequential.learn_one_task` and `compute_metric`:
   every `eval_every` epochs: C[k, e] from success and C_elegant[k, e] from ESR.
 - The network kept after task k is the first best of these checkpoints by success, as LIBERO keeps its
   best checkpoint ("as if it stopped learning there"; this is also why the metrics clamp C after its
-  best point). The next task starts from it, and S uses it.
-- After task k the kept network is evaluated on every task j <= k: S[k, j] and S_elegant[k, j]. S[k, k]
-  is the evaluation of the kept checkpoint on task k that already ran while learning it (episode starts
-  depend only on the seed, and the policy acts deterministically), so it is read, not run again.
-- FWT, NBT and AUC come from `elegant.evaluation.metrics.lifelong_metrics`, once on (S, C), once on the elegant pair,
-  whose curves are clamped at the checkpoints kept by success (the ones S_elegant evaluates).
+  best point). The algorithm's end of task follows (EWC: Fisher information; PackNet: pruning and
+  fine-tuning, whose best checkpoint is then kept). The next task starts from the kept network, and S
+  uses it.
+- After task k the kept network is evaluated on every task j <= k: S[k, j] and S_elegant[k, j] (PackNet:
+  with task j's weights only). S[k, k] is the evaluation of the kept checkpoint on task k that already
+  ran (episode starts depend only on the seed, and the policy acts deterministically), so it is read,
+  not run again.
+- Multitask: C[k, e] is task k's success at each evaluation epoch of the one training run; the first
+  best checkpoint by mean success is kept, and its successes fill the last row of S only, as in LIBERO.
+- FWT, NBT and AUC come from `elegant.evaluation.metrics.lifelong_metrics`, once on (S, C), once on the
+  elegant pair, whose curves are clamped at the checkpoints kept by success (the ones S_elegant
+  evaluates). `final_success` is the mean of S's last row: every task, once all are learned.
 
 Layout of OUT (k is the position in the learning order, e an evaluation epoch)::
 
     config.json                    the run's settings; a resumed run must match them
     stages/task_<k>/               `train_policy` output of task k (checkpoint.pt, final policy) with
       epoch_<e>/                   the policy as of each evaluation epoch
-    evals/task_<k>/epoch_<e>/      `evaluate` run of that snapshot on task k (C)
-    evals/after_task_<k>/          `evaluate` run of the network kept after task k on tasks before it (S)
+      ewc_anchor.pt                EWC: Fisher information and weights after tasks 0..k
+      pruned/, post/epoch_<e>/     PackNet: the pruned network (with packnet_masks.pt), its fine-tuning
+      for_task_<j>/                PackNet: the network after task k with the weights of tasks 0..j only
+    stages/all_tasks/epoch_<e>/    multitask: the one training run
+    evals/task_<k>/epoch_<e>/      `evaluate` run of that snapshot on task k (C); PackNet adds post_epoch_<e>/
+    evals/after_task_<k>/          `evaluate` run of the network kept after task k on tasks before it (S);
+                                   PackNet: one run per earlier task, task_<j>/
+    evals/all_tasks/epoch_<e>/     multitask: each snapshot on every task
     lifelong.json                  config, S, C, S_elegant, C_elegant, kept epochs, metrics, metrics_elegant
     report.md, success_matrix.png, learning_curves.png
 
@@ -35,9 +48,9 @@ stage from its checkpoint, to the same numbers.
 
 from __future__ import annotations
 
+import json
 import os
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,63 +67,27 @@ from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
-from elegant.evaluation.metrics import lifelong_metrics
-from elegant.evaluation.runner import evaluate
-from elegant.policies.bc_config import BCConfig
+from elegant.evaluation.lifelong_algos import STAGED_ALGORITHMS, LifelongRun, Sequential, stage_policy_config
+from elegant.evaluation.metrics import clamp_learning_curves, lifelong_metrics
 from elegant.policies.bc_data import load_demos
 from elegant.policies.bc_features import BCFeatures
-from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir, train_policy
+from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir
 from elegant.reporting.report import markdown_table, percent, save_figure
+
+# how reports name each algorithm (LIBERO's names)
+ALGORITHM_NAMES = {
+    "seql": "sequential fine-tuning (SeqL)",
+    "er": "experience replay (ER)",
+    "ewc": "elastic weight consolidation (EWC)",
+    "packnet": "PackNet",
+    "multitask": "multitask training (MTL, the upper bound)",
+}
+
+# the metrics a run reports, in LIBERO's order, and the mean success once every task is learned
+METRIC_KEYS = ("fwt", "nbt", "auc", "final_success")
 
 # the schema of OUT/config.json; records from before it had none and count as this one
 LIFELONG_FORMAT = "libero-elegant-lifelong/1"
-
-
-@dataclass
-class _Run:
-    """What every stage needs: the settings, the fixed input features and the networks kept so far."""
-
-    out: Path
-    config: dict[str, Any]
-    paths: list[str]
-    features: BCFeatures
-    status: Callable[[str], None]
-    workers: int | Workers = 1  # processes per evaluation (a run control, not a setting: results do not depend on it)
-    compute: ComputeConfig = field(default_factory=ComputeConfig)  # where the stages train and score
-    kept: list[str] = field(default_factory=list)
-
-    def stage_dir(self, k: int) -> str:
-        return str(self.out / "stages" / f"task_{k}")
-
-
-def stage_policy_config(epochs: int, seed: int, modes: int) -> BCConfig:
-    """The policy every stage trains: LIBERO's lifelong protocol clones one action per step, without input
-    noise (the chunked, noise-trained policy of JITI's recipe is another experiment)."""
-    return BCConfig(epochs=epochs, seed=seed, modes=modes, chunk=1, obs_noise=0.0)
-
-
-def train_stage_sequential(run: _Run, k: int) -> None:
-    """SeqL: fine-tune the network kept after task k-1 on task k's demos (task 0 starts from a fresh
-    network over the features of all K tasks); snapshots at the evaluation epochs."""
-    cfg = run.config
-    start = {"features": run.features} if k == 0 else {"init_from": run.kept[k - 1]}
-    train_policy(
-        run.paths,
-        run.stage_dir(k),
-        stage_policy_config(cfg["epochs"], cfg["seed"], cfg["modes"]),
-        fine_tuning=FineTuning(tasks=[cfg["task_keys"][k]], snapshot_epochs=cfg["eval_epochs"], **start),
-        successful_only=False,
-        resume=True,
-        progress=False,
-        compute=run.compute,
-        on_epoch_end=lambda info: run.status(
-            f"{cfg['task_keys'][k]}: epoch {info['epoch']}/{cfg['epochs']}, nll {info['nll']:.3f}"
-        ),
-    )
-
-
-# How each algorithm trains stage k into `run.stage_dir(k)`; another lifelong algorithm slots in here.
-STAGE_TRAINERS: dict[str, Callable[[_Run, int], None]] = {"sequential": train_stage_sequential}
 
 
 def _task_indices(suite: str, tasks: Sequence[int | str]) -> list[int]:
@@ -130,7 +107,10 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
     if out.exists() and not out.is_dir():
         raise UserInputError(f"{out}: exists and is not a directory")
     if resume and path.exists():
-        changed = changed_fields(read_json_file(path, "lifelong config"), config, added=added_later("lifelong run"))
+        recorded = read_json_file(path, "lifelong config")
+        if recorded.get("algorithm") == "sequential":  # SeqL's name before the other algorithms came
+            recorded["algorithm"] = "seql"
+        changed = changed_fields(recorded, config, added=added_later("lifelong run"))
         if changed:
             key, before, now = changed[0]
             raise UserInputError(
@@ -143,59 +123,62 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
     atomic_write_json(path, config)
 
 
-def _evaluate(run: _Run, policy: str, tasks: list[int], run_dir: Path) -> dict[str, Any]:
-    """One base-mode evaluation run without critic; a finished run directory is read back, not re-run."""
-    cfg = run.config
-    summary = run_dir / "summary.json"
-    if summary.exists():
-        return read_json_file(summary, "evaluation summary")
-    return evaluate(
-        cfg["suite"],
-        tasks,
-        policy,
-        None,
-        out=run_dir,
-        resume=True,
-        progress=False,
-        workers=run.workers,
-        compute=run.compute,
-        mode="base",
-        episodes=cfg["episodes"],
-        seed=cfg["seed"],
-        max_steps=cfg["max_steps"],
-    )
-
-
-def _rates(summary: dict[str, Any], key: str) -> tuple[float, float]:
-    block = summary["per_task"][key]
-    return block["success_rate"], block["esr"]
-
-
-def _learn_and_measure(run: _Run, k: int, C: np.ndarray, S: np.ndarray) -> int:
+def _learn_and_measure(run: LifelongRun, algorithm: Sequential, k: int, C: np.ndarray, S: np.ndarray) -> int:
     """Stage k of the protocol: train (unless done), fill C[:, k] and S[:, k, :k+1]; returns the kept epoch.
 
     C and S hold success in [0] and ESR in [1].
     """
-    cfg, indices, keys = run.config, run.config["tasks"], run.config["task_keys"]
+    cfg, keys = run.config, run.config["task_keys"]
     stage = run.stage_dir(k)
     if not os.path.exists(os.path.join(stage, "config.json")):  # train_policy publishes the final policy last
         run.status(f"{keys[k]}: training")
-        STAGE_TRAINERS[cfg["algorithm"]](run, k)
+        algorithm.train_stage(run, k)
     for i, epoch in enumerate(cfg["eval_epochs"]):
         run.status(f"{keys[k]}: evaluating epoch {epoch}")
-        summary = _evaluate(
-            run, snapshot_dir(stage, epoch), [indices[k]], run.out / "evals" / f"task_{k}" / f"epoch_{epoch}"
-        )
-        C[:, k, i] = _rates(summary, keys[k])
+        C[:, k, i] = run.evaluate(snapshot_dir(stage, epoch), [k], run.out / "evals" / f"task_{k}" / f"epoch_{epoch}")[
+            :, 0
+        ]
     best = int(np.argmax(C[0, k]))  # the first best, as LIBERO replaces its checkpoint only on a strict gain
-    run.kept.append(snapshot_dir(stage, cfg["eval_epochs"][best]))
-    S[:, k, k] = C[:, k, best]
+    kept, rates = algorithm.end_task(run, k, snapshot_dir(stage, cfg["eval_epochs"][best]))
+    run.kept.append(kept)
+    S[:, k, k] = C[:, k, best] if rates is None else rates
     if k:
         run.status(f"{keys[k]} learned: evaluating the {k} earlier task(s)")
-        summary = _evaluate(run, run.kept[k], indices[:k], run.out / "evals" / f"after_task_{k}")
-        for j in range(k):
-            S[:, k, j] = _rates(summary, keys[j])
+        for policy, positions, run_dir in algorithm.earlier(run, k):
+            S[:, k, positions] = run.evaluate(policy, positions, run_dir)
     return cfg["eval_epochs"][best]
+
+
+def _learn_all_at_once(run: LifelongRun, C: np.ndarray, S: np.ndarray) -> list[int]:
+    """Multitask training (LIBERO's upper bound): one network on all K tasks' demos, evaluated on every task
+    before training and every `eval_every` epochs (C[:, k, e]); the first best checkpoint by mean success
+    is kept, and its successes are the last row of S (the only row LIBERO's multitask fills)."""
+    cfg, K = run.config, len(run.config["task_keys"])
+    stage = str(run.out / "stages" / "all_tasks")
+    if not os.path.exists(os.path.join(stage, "config.json")):
+        run.status("all tasks: training")
+        tune = FineTuning(tasks=cfg["task_keys"], features=run.features, snapshot_epochs=cfg["eval_epochs"])
+        run.train(stage, tune, cfg["epochs"], "all tasks")
+    for i, epoch in enumerate(cfg["eval_epochs"]):
+        run.status(f"all tasks: evaluating epoch {epoch}")
+        C[:, :, i] = run.evaluate(
+            snapshot_dir(stage, epoch), range(K), run.out / "evals" / "all_tasks" / f"epoch_{epoch}"
+        )
+    best = int(np.argmax(C[0].mean(axis=0)))
+    run.kept.append(snapshot_dir(stage, cfg["eval_epochs"][best]))
+    S[:, K - 1, :] = C[:, :, best]
+    return [cfg["eval_epochs"][best]] * K
+
+
+def _metrics(S: np.ndarray, C: np.ndarray, kept: list[int], multitask: bool) -> dict[str, Any]:
+    """LIBERO's FWT, NBT and AUC of one (S, C) pair, plus `final_success`: the mean success on all tasks once
+    all are learned (the last row of S). Multitask has no sequence: FWT is the area under its clamped
+    curves (LIBERO's `learn_all_tasks`), NBT and AUC are None."""
+    final = float(np.mean(S[-1]))
+    if multitask:
+        curves = clamp_learning_curves(C, kept)
+        return {"fwt": float(curves.mean()), "nbt": None, "auc": None, "final_success": final}
+    return {**lifelong_metrics(S, C, kept=kept), "final_success": final}
 
 
 def run_lifelong(
@@ -211,21 +194,21 @@ def run_lifelong(
     compute: ComputeConfig | None = None,
     **settings: Any,
 ) -> dict[str, Any]:
-    """Learn `tasks` of `suite` in order with sequential fine-tuning and measure LIBERO's lifelong metrics.
+    """Learn `tasks` of `suite` in order with one of LIBERO's lifelong algorithms (`algo`: seql, er, ewc,
+    packnet; multitask learns them all at once) and measure LIBERO's lifelong metrics.
 
     `demo_paths`: demo HDF5 files (from `elegant demos`) holding the demos of every task; task k learns
     from the demos with its task key. The settings are `config`'s (default: `LifelongConfig`'s), with
-    keyword `settings` naming its fields overriding it: epochs per task, evaluating the current task every
-    `eval_every` epochs and before training on it, episodes per evaluation, seed, max_steps, the policy's
-    mixture components. `workers`: processes running each evaluation's episodes (`elegant.evaluate`);
-    `compute`: where the stages train and the evaluations score (`ComputeConfig`).
-    Writes OUT as the module docstring describes and returns the content of OUT/lifelong.json.
+    keyword `settings` naming its fields overriding it: the algorithm and its own settings, epochs per
+    task, evaluating the current task every `eval_every` epochs and before training on it, episodes per
+    evaluation, seed, max_steps, the policy's mixture components. `workers`: processes running each
+    evaluation's episodes (`elegant.evaluate`); `compute`: where the stages train and the evaluations
+    score (`ComputeConfig`). Writes OUT as the module docstring describes and returns the content of
+    OUT/lifelong.json.
     """
     cfg = with_overrides(config or LifelongConfig(), settings, "lifelong")
     compute = compute or ComputeConfig()
     use_compute(compute, "lifelong")  # a device that is not there is refused before the first stage trains
-    epochs, eval_every, episodes, seed = cfg.epochs, cfg.eval_every, cfg.episodes, cfg.seed
-    max_steps, modes = cfg.max_steps, cfg.modes
     workers = check_workers(workers)
     indices = _task_indices(suite, tasks)
     keys = [task_key(suite, i) for i in indices]
@@ -233,36 +216,43 @@ def run_lifelong(
         raise UserInputError("lifelong: expected a non-empty list of demo files")
     paths = [os.fspath(p) for p in demo_paths]
     data = select_tasks(load_demos(paths), keys)
-    defaults = stage_policy_config(epochs, seed, modes)
+    defaults = stage_policy_config(cfg.epochs, cfg.seed, cfg.modes)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
     config = {
         "format": LIFELONG_FORMAT,
         "protocol": "LIBERO lifelong (Liu et al. 2023)",
-        "algorithm": "sequential",
+        "algorithm": cfg.algo,
+        "algorithm_settings": cfg.algorithm_settings(),
         "suite": suite,
         "tasks": indices,
         "task_keys": keys,
         "data": data.files,
-        "epochs": int(epochs),
-        "eval_every": int(eval_every),
-        "eval_epochs": list(range(0, int(epochs) + 1, int(eval_every))),
-        "episodes": int(episodes),
-        "seed": int(seed),
-        "max_steps": max_steps,
-        "modes": int(modes),
+        "epochs": int(cfg.epochs),
+        "eval_every": int(cfg.eval_every),
+        "eval_epochs": list(range(0, int(cfg.epochs) + 1, int(cfg.eval_every))),
+        "episodes": int(cfg.episodes),
+        "seed": int(cfg.seed),
+        "max_steps": cfg.max_steps,
+        "modes": int(cfg.modes),
     }
     out = Path(out)
+    multitask = cfg.algo == "multitask"
     with output_lock(out):  # one writer per lifelong run directory
         _prepare(out, config, resume)
         K, E = len(keys), len(config["eval_epochs"])
         C = np.zeros((2, K, E))
         S = np.full((2, K, K), np.nan)
-        kept_epochs = []
-        with tqdm(total=K, desc="lifelong", unit="task", disable=not progress) as bar:
-            run = _Run(out, config, paths, features, bar.set_postfix_str, workers, compute)
-            for k in range(K):
-                kept_epochs.append(_learn_and_measure(run, k, C, S))
+        with tqdm(total=1 if multitask else K, desc=f"lifelong {cfg.algo}", unit="stage", disable=not progress) as bar:
+            run = LifelongRun(out, config, paths, data, features, bar.set_postfix_str, workers, compute)
+            if multitask:
+                kept_epochs = _learn_all_at_once(run, C, S)
                 bar.update(1)
+            else:
+                kept_epochs = []
+                for k in range(K):
+                    kept_epochs.append(_learn_and_measure(run, STAGED_ALGORITHMS[cfg.algo], k, C, S))
+                    bar.update(1)
+        kept = [config["eval_epochs"].index(e) for e in kept_epochs]
         result = {
             "config": config,
             "kept_epochs": kept_epochs,
@@ -271,9 +261,9 @@ def run_lifelong(
             "C": C[0].tolist(),
             "S_elegant": _matrix(S[1]),
             "C_elegant": C[1].tolist(),
-            "metrics": lifelong_metrics(S[0], C[0]),
+            "metrics": _metrics(S[0], C[0], kept, multitask),
             # Checkpoints are kept by success, so the elegant curves are clamped where those were kept.
-            "metrics_elegant": lifelong_metrics(S[1], C[1], kept=[int(np.argmax(row)) for row in C[0]]),
+            "metrics_elegant": _metrics(S[1], C[1], kept, multitask),
         }
         atomic_write_json(out / "lifelong.json", result)
         _write_report(out, result, S, C)
@@ -346,26 +336,28 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
         return "—" if np.isnan(s) else f"{percent(s)} / {percent(e)}"
 
     metrics = [
-        [name, *(f"{result[m][key]:.3f}" for key in ("fwt", "nbt", "auc"))]
+        [name, *("—" if result[m][key] is None else f"{result[m][key]:.3f}" for key in METRIC_KEYS)]
         for name, m in (("success", "metrics"), ("elegant success (ESR)", "metrics_elegant"))
     ]
     lines = [
-        f"# Lifelong learning: {cfg['suite']}, {cfg['algorithm']} fine-tuning",
+        f"# Lifelong learning: {cfg['suite']}, {ALGORITHM_NAMES[cfg['algorithm']]}",
         "",
         f"- tasks in learning order: {', '.join(labels)}",
         f"- {cfg['epochs']} epochs per task, evaluated at epochs {', '.join(map(str, cfg['eval_epochs']))}; "
         f"{cfg['episodes']} episodes per evaluation; seed {cfg['seed']}; max steps "
         f"{cfg['max_steps'] or 'suite default'}",
         f"- demos: {', '.join(f['path'] for f in cfg['data'])}; each task's normalisation is fitted on its own demos",
+        f"- algorithm settings: {json.dumps(cfg['algorithm_settings']) if cfg['algorithm_settings'] else 'none'}",
         "- kept checkpoint per task (first best success, as LIBERO): epoch "
         f"{', '.join(map(str, result['kept_epochs']))}",
         "",
         "## Metrics",
         "",
-        markdown_table(["from", "FWT", "NBT", "AUC"], metrics),
+        markdown_table(["from", "FWT", "NBT", "AUC", "final"], metrics),
         "",
         "FWT: mean of the learning curves C (clamped at their best). NBT: mean drop of a task's success after "
-        "later tasks were learned (lower is better). AUC: per task, learning curve and later successes together.",
+        "later tasks were learned (lower is better). AUC: per task, learning curve and later successes together. "
+        "final: mean over all tasks once all are learned (S's last row). Multitask has no sequence: no NBT, AUC.",
         "",
         "## Success matrix S: success / ESR on task j (column) after learning task i (row)",
         "",

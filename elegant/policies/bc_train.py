@@ -10,7 +10,9 @@ Sequential fine-tuning (the lifelong protocol, `elegant.evaluation.lifelong`) ne
 some tasks of multi-task files (`tasks`), an input encoder fixed over more tasks than a stage trains on
 (`features`) or inherited from the previous network (`init_from`, which also brings its weights), and
 the network as of intermediate epochs (`snapshot_epochs`, published like the final policy, because the
-protocol evaluates them and keeps the best).
+protocol evaluates them and keeps the best). LIBERO's other lifelong baselines add one mechanism each to
+the training step (`elegant.policies.continual`): a replay memory joined to every batch (ER), a penalty
+towards the earlier tasks' weights (EWC), or weights the task may not change (PackNet).
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
+from elegant.policies.continual import ElasticAnchor, WeightMasks, memory_digest
 from elegant.policies.protocol import ACTION_DIM
 
 CHECKPOINT_FILE = "checkpoint.pt"
@@ -89,6 +92,16 @@ class _Windows:
             filled = torch.arange(dim) < self.widths[rows][..., None]
             window[..., :dim] += torch.randn(window[..., :dim].shape, generator=generator) * noise * filled
         return self.features.flatten_window(window), self.actions[targets].flatten(1)
+
+
+def demo_batches(
+    data: DemoSet, features: BCFeatures, *, chunk: int, batch_size: int, seed: int
+) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """All of `data`'s samples as model inputs and targets, in batches of a seeded shuffle (EWC's Fisher
+    estimate goes over a task's data this way, as LIBERO's does over a shuffled loader)."""
+    windows = _Windows(data, features, chunk)
+    order = torch.randperm(len(windows), generator=torch.Generator().manual_seed(int(seed)))
+    return [windows.batch(index) for index in order.split(int(batch_size))]
 
 
 def _save_checkpoint(path: str, state: dict[str, Any]) -> None:
@@ -180,13 +193,28 @@ class FineTuning:
     fitting it on the data (e.g. fitted over more tasks than this run trains on); `init_from` starts from
     a policy directory's weights and features instead of a fresh network (not with `features`);
     `snapshot_epochs` also publishes the policy as of these epochs (0: before training) in
-    `snapshot_dir(out, epoch)`. `tasks`, the fixed features and the init policy are part of what a
-    resumed checkpoint must match."""
+    `snapshot_dir(out, epoch)`. `replay` (ER): demos of earlier tasks, of which every batch is joined by
+    as many samples, drawn uniformly; `anchor` (EWC): its penalty is added to the loss; `masks` (PackNet):
+    only the weights `masks.task` owns train. `tasks`, the fixed features, the init policy and these three
+    are part of what a resumed checkpoint must match."""
 
     tasks: Sequence[str] | None = None
     features: BCFeatures | None = None
     init_from: str | None = None
     snapshot_epochs: Collection[int] = ()
+    replay: DemoSet | None = None
+    anchor: ElasticAnchor | None = None
+    masks: WeightMasks | None = None
+
+    def continual(self) -> dict[str, str | None] | None:
+        """The lifelong mechanisms by content (None: plain training), for the checkpoint's fingerprint."""
+        if self.replay is None and self.anchor is None and self.masks is None:
+            return None
+        return {
+            "replay": None if self.replay is None else memory_digest(self.replay),
+            "anchor": None if self.anchor is None else self.anchor.digest(),
+            "masks": None if self.masks is None else self.masks.digest(),
+        }
 
 
 def train_policy(
@@ -240,9 +268,11 @@ def train_policy(
         # The start network by content, not by path: a moved or copied run directory still resumes.
         "init_from": None if init is None else {"model_sha256": init[2]["model_sha256"]},
         "successful_only": bool(successful_only),
+        "continual": tune.continual(),
     }
     features = _input_features(data, cfg, features, init, init_from)
     windows = _Windows(data, features, cfg.chunk)
+    replay = None if tune.replay is None else _Windows(tune.replay, features, cfg.chunk)
     model_spec = {
         "input_dim": features.input_dim,
         "hidden": list(cfg.hidden),
@@ -265,6 +295,7 @@ def train_policy(
         )
     if init is not None:
         _start_from(net, init, model_spec, init_from)
+    masks = None if tune.masks is None else tune.masks.bind(net, init_from or out)
     net.to(device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps_per_epoch = math.ceil(len(windows) / cfg.batch_size)
@@ -313,17 +344,28 @@ def train_policy(
             desc="train-policy",
             unit="batch",
         )
+        frozen = {name: p.detach().clone() for name, p in net.named_parameters()} if masks is not None else None
         net.train()
         for epoch in range(start_epoch, cfg.epochs):
             total = 0.0
             for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
-                x, actions = (t.to(device) for t in windows.batch(index, cfg.obs_noise, generator))
-                loss = net.nll(x, actions).mean()
+                x, actions = windows.batch(index, cfg.obs_noise, generator)
+                if replay is not None:
+                    drawn = torch.randint(len(replay), (len(index),), generator=generator)
+                    x, actions = (
+                        torch.cat(pair) for pair in zip((x, actions), replay.batch(drawn, cfg.obs_noise, generator))
+                    )
+                loss = net.nll(x.to(device), actions.to(device)).mean()
+                objective = loss if tune.anchor is None else loss + tune.anchor.penalty(net)
                 optimizer.zero_grad(set_to_none=True)
-                loss.backward()
+                objective.backward()
                 if cfg.grad_clip > 0:
                     torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
+                if masks is not None:
+                    masks.hold(net)
                 optimizer.step()
+                if masks is not None:
+                    masks.restore(net, frozen)
                 scheduler.step()
                 total += loss.item() * len(index)
                 bar.update(1)
