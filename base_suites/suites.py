@@ -65,6 +65,19 @@ def list_suites() -> list[str]:
     return list(MAIN_SUITES + PRO_SUITES)
 
 
+def task_order(suite: str, index: int) -> list[int]:
+    """The task indices of `suite` in LIBERO's lifelong task order `index` (LIBERO's `task_orders`, which its
+    `Benchmark(task_order_index)` applies to the four 10-task suites; order 0 is the suite's own order)."""
+    if suite not in MAIN_SUITES[:4]:
+        raise UserInputError(
+            f"task order: LIBERO orders the tasks of {', '.join(MAIN_SUITES[:4])} only, not {suite!r}; list --tasks"
+        )
+    orders = libero_modules()["benchmark"].task_orders
+    if int(index) != index or not 0 <= index < len(orders):
+        raise UserInputError(f"task order: expected an index in 0..{len(orders) - 1}, got {index!r}")
+    return [int(i) for i in orders[int(index)]]
+
+
 @functools.cache
 def _benchmark(suite: str):
     if suite not in list_suites():

@@ -478,14 +478,23 @@ def _gate(args: argparse.Namespace) -> dict:
 
 
 def _lifelong_args(p: argparse.ArgumentParser) -> None:
-    from base_suites.runtime.settings import add_settings_arguments
+    from base_suites.runtime.settings import add_settings_arguments, index_list
     from elegant.evaluation.config import LifelongConfig
 
     p.add_argument("data", nargs="+", help="demos HDF5 file(s) holding the demos of every task (from elegant demos)")
     p.add_argument("--suite", required=True)
-    p.add_argument("--tasks", required=True, help="comma-separated task indices in learning order, e.g. 0,1,2")
+    order = p.add_mutually_exclusive_group(required=True)
+    order.add_argument("--tasks", help="comma-separated task indices in learning order, e.g. 0,1,2")
+    order.add_argument(
+        "--task-order", type=int, metavar="K", help="all ten tasks in LIBERO's task order K (0: the suite's own order)"
+    )
     p.add_argument("--out", required=True, help="run directory")
     add_settings_arguments(p, LifelongConfig)
+    p.add_argument(
+        "--seeds",
+        type=index_list,
+        help="one run per seed (OUT/seed_<s>/), reported as mean and standard deviation, e.g. 0,1,2 (not with --seed)",
+    )
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
     _workers_arg(p)
     _compute_args(p)
@@ -496,21 +505,41 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     "LIBERO's lifelong protocol (SeqL, ER, EWC, PackNet, multitask): FWT, NBT, AUC from success and from ESR",
 )(_lifelong_args)
 def _lifelong(args: argparse.Namespace) -> dict:
+    from base_suites import task_order
+    from base_suites.runtime.errors import UserInputError
     from base_suites.runtime.settings import settings_from_args
     from elegant.evaluation.config import LifelongConfig
     from elegant.evaluation.lifelong import run_lifelong
+    from elegant.evaluation.lifelong_table import run_lifelong_seeds
 
-    result = run_lifelong(
-        args.suite,
-        _task_list(args.tasks),
-        args.data,
-        args.out,
-        resume=args.resume,
-        workers=_workers(args),
-        compute=_compute(args),
-        **settings_from_args(args, LifelongConfig),
+    settings = settings_from_args(args, LifelongConfig)
+    tasks = _task_list(args.tasks) if args.tasks is not None else task_order(args.suite, args.task_order)
+    common = {"resume": args.resume, "workers": _workers(args), "compute": _compute(args), **settings}
+    if args.seeds is None:
+        result = run_lifelong(args.suite, tasks, args.data, args.out, **common)
+        return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
+    if "seed" in settings:
+        raise UserInputError("lifelong: give --seed for one run or --seeds for several, not both")
+    summary = run_lifelong_seeds(args.suite, tasks, args.data, args.out, args.seeds, **common)
+    means = {source: {k: v["mean"] for k, v in summary[source].items()} for source in ("metrics", "metrics_elegant")}
+    return {"out": args.out, "seeds": summary["seeds"], **means}
+
+
+def _lifelong_table_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "runs", nargs="+", help="finished elegant lifelong outputs, one per algorithm (with or without --seeds)"
     )
-    return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
+    p.add_argument("--out", required=True, help="directory for table.md, table.json and the plots")
+    _overwrite_arg(p)
+
+
+@command("lifelong-table", "LIBERO's table of lifelong algorithms side by side, from success and from ESR")(
+    _lifelong_table_args
+)
+def _lifelong_table(args: argparse.Namespace) -> None:
+    from elegant.evaluation.lifelong_table import lifelong_table
+
+    print(lifelong_table(args.runs, args.out, overwrite=args.overwrite)["markdown"])
 
 
 def _report_args(p: argparse.ArgumentParser) -> None:

@@ -273,3 +273,42 @@ def test_an_unknown_algorithm_or_setting_is_refused_before_any_work(demos, tmp_p
     with pytest.raises(UserInputError, match="packnet_epochs .3. must be a multiple of eval_every"):
         run_algorithm(demos, tmp_path / "c", "packnet", packnet_epochs=3, eval_every=2)
     assert not any((tmp_path / d).exists() for d in "abc")
+
+
+def test_seeds_from_the_command_line_repeat_the_single_run_per_seed(run, demos, tmp_path, capsys):
+    _, single = run
+    out = tmp_path / "seeds"
+    args = ["lifelong", "--suite", SUITE, "--tasks", "0,1", demos, "--out", str(out), "--epochs", "2"]
+    args += ["--eval-every", "1", "--episodes", "1", "--max-steps", "5", "--seeds", "0,1"]
+    assert main(args) == 0
+    summary = json.loads((out / "lifelong_seeds.json").read_text())
+    assert summary["seeds"] == [0, 1] and summary["runs"] == [str(out / "seed_0"), str(out / "seed_1")]
+    seed0 = json.loads((out / "seed_0" / "lifelong.json").read_text())
+    for key in ("S", "C", "S_elegant", "C_elegant", "metrics", "metrics_elegant", "kept_epochs"):
+        assert seed0[key] == single[key], key  # same seed, same numbers
+    assert json.loads((out / "seed_1" / "config.json").read_text())["seed"] == 1
+    assert (out / "report.md").exists() and (out / "success_matrix.png").exists()
+    capsys.readouterr()
+    assert main([*args, "--seed", "3", "--resume"]) == 2
+    assert "--seed for one run or --seeds for several" in capsys.readouterr().err
+    assert main([*args[:-2], "--seeds", "0,2", "--resume"]) == 2
+    assert "seeds [0, 1] but this run has [0, 2]" in capsys.readouterr().err
+    assert main(args) == 2  # a finished output is not started again
+    assert "seeds.json: exists" in capsys.readouterr().err
+    bad = [a if a != "0,1" else "0,2" for a in args[:-2]] + ["--seeds", "0,1"]
+    bad[bad.index(str(out))] = str(tmp_path / "bad")
+    assert main(bad) == 2 and "no demos of task libero_object/2" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_task_order_follows_libero(demos, tmp_path, capsys):
+    from base_suites import task_order
+
+    assert task_order("libero_object", 0) == list(range(10))
+    assert task_order("libero_object", 1) == [4, 6, 8, 7, 3, 1, 2, 0, 9, 5]
+    with pytest.raises(UserInputError, match="expected an index in 0..20"):
+        task_order("libero_object", 21)
+    args = ["lifelong", "--suite", "libero_90", "--task-order", "1", demos, "--out", str(tmp_path / "o")]
+    assert main(args) == 2
+    assert "LIBERO orders the tasks of libero_spatial" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -69,7 +69,7 @@ from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.lifelong_algos import STAGED_ALGORITHMS, LifelongRun, Sequential, stage_policy_config
 from elegant.evaluation.metrics import clamp_learning_curves, lifelong_metrics
-from elegant.policies.bc_data import load_demos
+from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir
 from elegant.reporting.report import markdown_table, percent, save_figure
@@ -121,6 +121,36 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
         raise UserInputError(f"{out}: not empty ({hint}); choose another directory")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, config)
+
+
+def lifelong_inputs(
+    suite: str, tasks: Sequence[int | str], demo_paths: Sequence[str], cfg: LifelongConfig
+) -> tuple[dict[str, Any], DemoSet]:
+    """The record of a run (OUT/config.json) and the demos of its tasks, refusing unknown or repeated tasks
+    and demo files that lack a task's demos; reads, writes nothing."""
+    indices = _task_indices(suite, tasks)
+    keys = [task_key(suite, i) for i in indices]
+    if isinstance(demo_paths, (str, os.PathLike)) or not demo_paths:
+        raise UserInputError("lifelong: expected a non-empty list of demo files")
+    data = select_tasks(load_demos([os.fspath(p) for p in demo_paths]), keys)
+    config = {
+        "format": LIFELONG_FORMAT,
+        "protocol": "LIBERO lifelong (Liu et al. 2023)",
+        "algorithm": cfg.algo,
+        "algorithm_settings": cfg.algorithm_settings(),
+        "suite": suite,
+        "tasks": indices,
+        "task_keys": keys,
+        "data": data.files,
+        "epochs": int(cfg.epochs),
+        "eval_every": int(cfg.eval_every),
+        "eval_epochs": list(range(0, int(cfg.epochs) + 1, int(cfg.eval_every))),
+        "episodes": int(cfg.episodes),
+        "seed": int(cfg.seed),
+        "max_steps": cfg.max_steps,
+        "modes": int(cfg.modes),
+    }
+    return config, data
 
 
 def _learn_and_measure(run: LifelongRun, algorithm: Sequential, k: int, C: np.ndarray, S: np.ndarray) -> int:
@@ -210,31 +240,10 @@ def run_lifelong(
     compute = compute or ComputeConfig()
     use_compute(compute, "lifelong")  # a device that is not there is refused before the first stage trains
     workers = check_workers(workers)
-    indices = _task_indices(suite, tasks)
-    keys = [task_key(suite, i) for i in indices]
-    if isinstance(demo_paths, (str, os.PathLike)) or not demo_paths:
-        raise UserInputError("lifelong: expected a non-empty list of demo files")
-    paths = [os.fspath(p) for p in demo_paths]
-    data = select_tasks(load_demos(paths), keys)
+    config, data = lifelong_inputs(suite, tasks, demo_paths, cfg)
+    paths, keys = [os.fspath(p) for p in demo_paths], config["task_keys"]
     defaults = stage_policy_config(cfg.epochs, cfg.seed, cfg.modes)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
-    config = {
-        "format": LIFELONG_FORMAT,
-        "protocol": "LIBERO lifelong (Liu et al. 2023)",
-        "algorithm": cfg.algo,
-        "algorithm_settings": cfg.algorithm_settings(),
-        "suite": suite,
-        "tasks": indices,
-        "task_keys": keys,
-        "data": data.files,
-        "epochs": int(cfg.epochs),
-        "eval_every": int(cfg.eval_every),
-        "eval_epochs": list(range(0, int(cfg.epochs) + 1, int(cfg.eval_every))),
-        "episodes": int(cfg.episodes),
-        "seed": int(cfg.seed),
-        "max_steps": cfg.max_steps,
-        "modes": int(cfg.modes),
-    }
     out = Path(out)
     multitask = cfg.algo == "multitask"
     with output_lock(out):  # one writer per lifelong run directory
@@ -278,7 +287,7 @@ def _matrix(S: np.ndarray) -> list[list[float | None]]:
 # ---- report ----------------------------------------------------------------------------------------
 
 
-def _plot_matrices(S: np.ndarray, labels: list[str], path: Path) -> Path:
+def plot_success_matrices(S: np.ndarray, labels: list[str], path: Path) -> Path:
     """Heatmaps of S from success and from ESR; row i: after learning task i, column j: evaluated task."""
     from matplotlib.figure import Figure
 
@@ -329,7 +338,7 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
     """report.md with the metrics, S and C as tables (success / ESR), and the two plots."""
     cfg = result["config"]
     labels = [f"{k}: {key}" for k, key in enumerate(cfg["task_keys"])]
-    _plot_matrices(S, labels, out / "success_matrix.png")
+    plot_success_matrices(S, labels, out / "success_matrix.png")
     _plot_curves(C, cfg["eval_epochs"], result["kept_epochs"], labels, out / "learning_curves.png")
 
     def pair(s: float, e: float) -> str:
