@@ -169,20 +169,21 @@ def test_cli_hands_the_worker_count_and_the_device_to_the_run(demos, tmp_path, m
     assert main(args) == 0 and seen["compute"] == ComputeConfig(device="cpu")
 
 
-def test_a_run_from_before_the_mixture_size_setting_and_the_other_algorithms_resumes(demos, tmp_path):
+def test_a_run_from_before_the_mixture_size_batch_size_and_algorithm_settings_resumes(demos, tmp_path):
     out = tmp_path / "old"
-    result = run_lifelong(SUITE, TASKS, [demos], out, **{**SETTINGS, "modes": 5})
+    old = {**SETTINGS, "modes": 5, "batch_size": 256}
+    result = run_lifelong(SUITE, TASKS, [demos], out, **old)
     config = json.loads((out / "config.json").read_text())
     del config["modes"]  # as written before `modes` was recorded, when every run used 5
+    del config["batch_size"]  # ... before the batch size was, when stages trained in batches of 256
     del config["algorithm_settings"]  # ... and before the other algorithms, when SeqL was "sequential"
     config["algorithm"] = "sequential"
     (out / "config.json").write_text(json.dumps(config))
     with pytest.raises(UserInputError, match="field 'modes' is 5 but this run has 16"):
-        run_lifelong(SUITE, TASKS, [demos], out, resume=True, **SETTINGS)
-    assert (
-        run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "modes": 5})["metrics"]
-        == result["metrics"]
-    )
+        run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "batch_size": 256})
+    with pytest.raises(UserInputError, match="field 'batch_size' is 256 but this run has 32"):
+        run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "modes": 5})
+    assert run_lifelong(SUITE, TASKS, [demos], out, resume=True, **old)["metrics"] == result["metrics"]
 
 
 # ---- the other algorithms: each on the same tiny real run -----------------------------------------------

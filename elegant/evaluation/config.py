@@ -167,6 +167,9 @@ class LifelongConfig:
     seed: int = setting(0, "training and evaluation seed")
     max_steps: int | None = setting(None, "episode horizon (default: the suite's)")
     modes: int = setting(DEFAULT_MODES, "components of the policy's GMM head (runs from before this option used 5)")
+    batch_size: int = setting(
+        32, "samples per gradient step (LIBERO's 32; runs from before this option used 256, far fewer steps per epoch)"
+    )
     algo: LifelongAlgo = setting(
         "seql",
         "LIBERO's lifelong algorithm: sequential fine-tuning, experience replay, elastic weight consolidation, "
@@ -200,7 +203,13 @@ class LifelongConfig:
     def validate(self) -> None:
         """Refuse a non-positive count before any work starts (training comes before the first evaluation),
         and epochs that the evaluation points do not end on."""
-        counts = {"epochs": self.epochs, "eval_every": self.eval_every, "episodes": self.episodes, "modes": self.modes}
+        counts = {
+            "epochs": self.epochs,
+            "eval_every": self.eval_every,
+            "episodes": self.episodes,
+            "modes": self.modes,
+            "batch_size": self.batch_size,
+        }
         if self.max_steps is not None:
             counts["max_steps"] = self.max_steps
         for name, value in counts.items():

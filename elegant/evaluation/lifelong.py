@@ -149,6 +149,7 @@ def lifelong_inputs(
         "seed": int(cfg.seed),
         "max_steps": cfg.max_steps,
         "modes": int(cfg.modes),
+        "batch_size": int(cfg.batch_size),
     }
     return config, data
 
@@ -242,7 +243,7 @@ def run_lifelong(
     workers = check_workers(workers)
     config, data = lifelong_inputs(suite, tasks, demo_paths, cfg)
     paths, keys = [os.fspath(p) for p in demo_paths], config["task_keys"]
-    defaults = stage_policy_config(cfg.epochs, cfg.seed, cfg.modes)
+    defaults = stage_policy_config(config)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
     out = Path(out)
     multitask = cfg.algo == "multitask"

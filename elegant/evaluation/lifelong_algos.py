@@ -46,10 +46,18 @@ EWC_ANCHOR_FILE = "ewc_anchor.pt"
 PACKNET_MASKS_FILE = "packnet_masks.pt"
 
 
-def stage_policy_config(epochs: int, seed: int, modes: int) -> BCConfig:
-    """The policy every stage trains: LIBERO's lifelong protocol clones one action per step, without input
-    noise (the chunked, noise-trained policy of JITI's recipe is another experiment)."""
-    return BCConfig(epochs=epochs, seed=seed, modes=modes, chunk=1, obs_noise=0.0)
+def stage_policy_config(config: dict[str, Any], epochs: int | None = None) -> BCConfig:
+    """The policy every stage of the run recorded in `config` trains (for `epochs`, default the run's):
+    LIBERO's lifelong protocol clones one action per step, without input noise, in small batches (the
+    chunked, noise-trained policy of JITI's recipe is another experiment)."""
+    return BCConfig(
+        epochs=config["epochs"] if epochs is None else epochs,
+        seed=config["seed"],
+        modes=config["modes"],
+        batch_size=config["batch_size"],
+        chunk=1,
+        obs_noise=0.0,
+    )
 
 
 @dataclass
@@ -75,7 +83,7 @@ class LifelongRun:
         train_policy(
             self.paths,
             out,
-            stage_policy_config(epochs, cfg["seed"], cfg["modes"]),
+            stage_policy_config(cfg, epochs),
             fine_tuning=tune,
             successful_only=False,
             resume=True,
@@ -176,7 +184,7 @@ class ElasticWeightConsolidation(Sequential):
             run.status(f"{run.config['task_keys'][k]}: Fisher information")
             cfg, settings = run.config, run.config["algorithm_settings"]
             net, features, artifact = read_artifact(kept)
-            defaults = stage_policy_config(cfg["epochs"], cfg["seed"], cfg["modes"])
+            defaults = stage_policy_config(cfg)
             batches = demo_batches(
                 select_tasks(run.data, [cfg["task_keys"][k]]),
                 features,
