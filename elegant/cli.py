@@ -495,6 +495,12 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
         type=index_list,
         help="one run per seed (OUT/seed_<s>/), reported as mean and standard deviation, e.g. 0,1,2 (not with --seed)",
     )
+    p.add_argument(
+        "--pretrained",
+        metavar="POLICY_DIR",
+        help="start the first task from this policy's hidden layers and head, e.g. one trained on libero_90 "
+        "(LIBERO-100's protocol)",
+    )
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
     _workers_arg(p)
     _compute_args(p)
@@ -514,7 +520,13 @@ def _lifelong(args: argparse.Namespace) -> dict:
 
     settings = settings_from_args(args, LifelongConfig)
     tasks = _task_list(args.tasks) if args.tasks is not None else task_order(args.suite, args.task_order)
-    common = {"resume": args.resume, "workers": _workers(args), "compute": _compute(args), **settings}
+    common = {
+        "resume": args.resume,
+        "workers": _workers(args),
+        "compute": _compute(args),
+        "pretrained": args.pretrained,
+        **settings,
+    }
     if args.seeds is None:
         result = run_lifelong(args.suite, tasks, args.data, args.out, **common)
         return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}

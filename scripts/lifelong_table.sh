@@ -15,6 +15,6 @@ shift 3
 elegant=${ELEGANT:-elegant}
 algos=(seql er ewc packnet multitask)
 for algo in "${algos[@]}"; do
-    "$elegant" lifelong --suite "$suite" "$demos" --out "$out/$algo" --algo "$algo" "$@"
+    $elegant lifelong --suite "$suite" "$demos" --out "$out/$algo" --algo "$algo" "$@"
 done
-"$elegant" lifelong-table "${algos[@]/#/$out/}" --out "$out/table" --overwrite
+$elegant lifelong-table "${algos[@]/#/$out/}" --out "$out/table" --overwrite

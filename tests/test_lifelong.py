@@ -313,3 +313,45 @@ def test_task_order_follows_libero(demos, tmp_path, capsys):
     assert main(args) == 2
     assert "LIBERO orders the tasks of libero_spatial" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_the_table_script_runs_every_algorithm_and_tables_them(demos, tmp_path):
+    import subprocess
+    import sys
+
+    script = os.path.join(os.path.dirname(__file__), os.pardir, "scripts", "lifelong_table.sh")
+    out = tmp_path / "all"
+    options = ["--tasks", "0,1", "--epochs", "1", "--eval-every", "1", "--episodes", "1", "--max-steps", "5"]
+    done = subprocess.run(
+        ["bash", script, SUITE, demos, str(out), *options, "--packnet-epochs", "1"],
+        env={**os.environ, "ELEGANT": f"{sys.executable} -m elegant.cli"},
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    table = json.loads((out / "table" / "table.json").read_text())
+    assert list(table["algorithms"]) == ["seql", "er", "ewc", "packnet", "multitask"]
+    assert table["config"]["epochs"] == 1 and table["config"]["task_keys"] == ["libero_object/0", "libero_object/1"]
+    assert "| PackNet |" in (out / "table" / "table.md").read_text()
+    usage = subprocess.run(["bash", script, SUITE], capture_output=True, text=True)
+    assert usage.returncode == 2 and usage.stderr.startswith("usage:")
+
+
+def test_pretrained_policy_starts_the_sequence_with_its_hidden_layers_and_head(demos, tmp_path):
+    from elegant.policies.bc_train import FineTuning, train_policy
+
+    pretrained = str(tmp_path / "pretrained")  # trained on another task, as LIBERO-100 pre-trains on libero_90
+    train_policy(
+        [demos], pretrained, epochs=1, chunk=1, fine_tuning=FineTuning(tasks=["libero_object/1"]), progress=False
+    )
+    out = tmp_path / "lib100"
+    result = run_lifelong(SUITE, TASKS, [demos], out, pretrained=pretrained, **SETTINGS)
+    source, start = weights(pretrained), weights(snapshot_dir(str(out / "stages" / "task_0"), 0))
+    for name in ("trunk.2.weight", "trunk.2.bias", "head.means.weight", "head.logits.bias"):
+        assert torch.equal(start[name], source[name]), name
+    assert start["trunk.0.weight"].shape != source["trunk.0.weight"].shape  # the input covers other tasks
+    sha = json.loads((tmp_path / "pretrained" / "config.json").read_text())["model_sha256"]
+    assert result["config"]["pretrained"] == {"path": pretrained, "model_sha256": sha}
+    with pytest.raises(UserInputError, match="missing: no such policy directory"):
+        run_lifelong(SUITE, TASKS, [demos], tmp_path / "x", pretrained=str(tmp_path / "missing"), **SETTINGS)
+    assert not (tmp_path / "x").exists()

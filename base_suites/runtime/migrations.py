@@ -34,11 +34,22 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
     },
     # elegant lifelong's OUT/config.json: before the mixture size was a setting, policies had 5 components;
     # before the batch size was one, stages trained in batches of 256; before ER, EWC, PackNet and multitask,
-    # SeqL had no settings of its own
-    "lifelong run": {"format": "libero-elegant-lifelong/1", "modes": 5, "batch_size": 256, "algorithm_settings": {}},
+    # SeqL had no settings of its own; before pre-training, every run started from a fresh network
+    "lifelong run": {
+        "format": "libero-elegant-lifelong/1",
+        "modes": 5,
+        "batch_size": 256,
+        "algorithm_settings": {},
+        "pretrained": None,
+    },
     # train-policy's checkpoint fingerprint: before the success filter, observation noise and the lifelong
-    # baselines' mechanisms
-    "policy checkpoint": {"successful_only": False, "config": {"obs_noise": 0.0}, "continual": None},
+    # baselines' mechanisms and pre-training
+    "policy checkpoint": {
+        "successful_only": False,
+        "config": {"obs_noise": 0.0},
+        "continual": None,
+        "pretrained": None,
+    },
     # train-critic's checkpoint config
     "critic checkpoint": {
         "chunk": 1,

@@ -69,6 +69,7 @@ from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.lifelong_algos import STAGED_ALGORITHMS, LifelongRun, Sequential, stage_policy_config
 from elegant.evaluation.metrics import clamp_learning_curves, lifelong_metrics
+from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir
@@ -124,10 +125,14 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
 
 
 def lifelong_inputs(
-    suite: str, tasks: Sequence[int | str], demo_paths: Sequence[str], cfg: LifelongConfig
+    suite: str,
+    tasks: Sequence[int | str],
+    demo_paths: Sequence[str],
+    cfg: LifelongConfig,
+    pretrained: str | os.PathLike | None = None,
 ) -> tuple[dict[str, Any], DemoSet]:
-    """The record of a run (OUT/config.json) and the demos of its tasks, refusing unknown or repeated tasks
-    and demo files that lack a task's demos; reads, writes nothing."""
+    """The record of a run (OUT/config.json) and the demos of its tasks, refusing unknown or repeated tasks,
+    demo files that lack a task's demos and a pretrained policy that cannot be read; writes nothing."""
     indices = _task_indices(suite, tasks)
     keys = [task_key(suite, i) for i in indices]
     if isinstance(demo_paths, (str, os.PathLike)) or not demo_paths:
@@ -150,7 +155,11 @@ def lifelong_inputs(
         "max_steps": cfg.max_steps,
         "modes": int(cfg.modes),
         "batch_size": int(cfg.batch_size),
+        "pretrained": None,
     }
+    if pretrained is not None:
+        path = os.path.abspath(os.fspath(pretrained))
+        config["pretrained"] = {"path": path, "model_sha256": read_artifact(path)[2]["model_sha256"]}
     return config, data
 
 
@@ -188,7 +197,7 @@ def _learn_all_at_once(run: LifelongRun, C: np.ndarray, S: np.ndarray) -> list[i
     stage = str(run.out / "stages" / "all_tasks")
     if not os.path.exists(os.path.join(stage, "config.json")):
         run.status("all tasks: training")
-        tune = FineTuning(tasks=cfg["task_keys"], features=run.features, snapshot_epochs=cfg["eval_epochs"])
+        tune = FineTuning(tasks=cfg["task_keys"], snapshot_epochs=cfg["eval_epochs"], **run.fresh_start())
         run.train(stage, tune, cfg["epochs"], "all tasks")
     for i, epoch in enumerate(cfg["eval_epochs"]):
         run.status(f"all tasks: evaluating epoch {epoch}")
@@ -223,6 +232,7 @@ def run_lifelong(
     resume: bool = False,
     workers: int | Workers = 1,
     compute: ComputeConfig | None = None,
+    pretrained: str | os.PathLike | None = None,
     **settings: Any,
 ) -> dict[str, Any]:
     """Learn `tasks` of `suite` in order with one of LIBERO's lifelong algorithms (`algo`: seql, er, ewc,
@@ -234,14 +244,16 @@ def run_lifelong(
     task, evaluating the current task every `eval_every` epochs and before training on it, episodes per
     evaluation, seed, max_steps, the policy's mixture components. `workers`: processes running each
     evaluation's episodes (`elegant.evaluate`); `compute`: where the stages train and the evaluations
-    score (`ComputeConfig`). Writes OUT as the module docstring describes and returns the content of
-    OUT/lifelong.json.
+    score (`ComputeConfig`). `pretrained`: a policy directory (e.g. multitask-trained on libero_90) the first
+    stage starts from, LIBERO-100's protocol: its hidden layers and head carry over, while its input layer
+    and task conditioning, made for other tasks' states, start fresh. Writes OUT as the module docstring
+    describes and returns the content of OUT/lifelong.json.
     """
     cfg = with_overrides(config or LifelongConfig(), settings, "lifelong")
     compute = compute or ComputeConfig()
     use_compute(compute, "lifelong")  # a device that is not there is refused before the first stage trains
     workers = check_workers(workers)
-    config, data = lifelong_inputs(suite, tasks, demo_paths, cfg)
+    config, data = lifelong_inputs(suite, tasks, demo_paths, cfg, pretrained)
     paths, keys = [os.fspath(p) for p in demo_paths], config["task_keys"]
     defaults = stage_policy_config(config)
     features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)

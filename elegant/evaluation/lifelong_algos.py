@@ -74,6 +74,12 @@ class LifelongRun:
     compute: ComputeConfig = field(default_factory=ComputeConfig)  # where the stages train and score
     kept: list[str] = field(default_factory=list)
 
+    def fresh_start(self) -> dict[str, Any]:
+        """How the first network starts: over the features of all K tasks, from the pretrained policy's
+        weights where they fit (LIBERO-100) or freshly initialised."""
+        pretrained = self.config.get("pretrained")
+        return {"features": self.features, "pretrained": None if pretrained is None else pretrained["path"]}
+
     def stage_dir(self, k: int) -> str:
         return str(self.out / "stages" / f"task_{k}")
 
@@ -139,7 +145,7 @@ class Sequential:
     def train_stage(self, run: LifelongRun, k: int) -> None:
         """Stage k: task k's demos, starting where task k-1 left the network, snapshots at the evaluation epochs."""
         cfg = run.config
-        start = {"features": run.features} if k == 0 else {"init_from": run.kept[k - 1]}
+        start = run.fresh_start() if k == 0 else {"init_from": run.kept[k - 1]}
         tune = FineTuning(
             tasks=[cfg["task_keys"][k]], snapshot_epochs=cfg["eval_epochs"], **start, **self.mechanisms(run, k)
         )

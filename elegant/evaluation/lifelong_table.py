@@ -109,6 +109,7 @@ def run_lifelong_seeds(
     resume: bool = False,
     workers: int | Workers = 1,
     compute: ComputeConfig | None = None,
+    pretrained: str | os.PathLike | None = None,
     **settings: Any,
 ) -> dict[str, Any]:
     """`run_lifelong` once per seed in OUT/seed_<s>/ and their aggregate (module docstring); the settings
@@ -117,7 +118,7 @@ def run_lifelong_seeds(
     seeds = [int(s) for s in seeds]
     if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
         raise UserInputError(f"lifelong: --seeds must be distinct non-negative integers, got {seeds}")
-    lifelong_inputs(suite, tasks, demo_paths, cfg)  # bad tasks or demo files are refused before OUT exists
+    lifelong_inputs(suite, tasks, demo_paths, cfg, pretrained)  # bad tasks or demo files are refused before OUT exists
     check_workers(workers)
     use_compute(compute or ComputeConfig(), "lifelong")
     out = Path(out)
@@ -140,9 +141,10 @@ def run_lifelong_seeds(
                 out / f"seed_{seed}",
                 with_overrides(cfg, {"seed": seed}, "lifelong"),
                 progress=progress,
-                resume=resume or (out / f"seed_{seed}" / "config.json").exists(),
+                resume=resume,
                 workers=workers,
                 compute=compute,
+                pretrained=pretrained,
             )
             for seed in seeds
         ]

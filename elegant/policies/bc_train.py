@@ -181,6 +181,17 @@ def _start_from(net: BCNet, init: Init, model_spec: dict[str, Any], init_from: s
     net.load_state_dict(init[0].state_dict())
 
 
+def _transfer(net: BCNet, pretrained: Init) -> list[str]:
+    """Copy into `net` every parameter of the pretrained network with the same name and shape; returns
+    their names. A policy over other tasks differs in its input layer and task conditioning (other state
+    layouts, another one-hot), which stay as initialised; the hidden layers and the head carry over."""
+    source = pretrained[0].state_dict()
+    target = net.state_dict()
+    copied = [k for k, v in source.items() if k in target and target[k].shape == v.shape]
+    net.load_state_dict({**target, **{k: source[k] for k in copied}})
+    return copied
+
+
 def _digest(obj: Any) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True).encode()).hexdigest()
 
@@ -193,7 +204,9 @@ class FineTuning:
     fitting it on the data (e.g. fitted over more tasks than this run trains on); `init_from` starts from
     a policy directory's weights and features instead of a fresh network (not with `features`);
     `snapshot_epochs` also publishes the policy as of these epochs (0: before training) in
-    `snapshot_dir(out, epoch)`. `replay` (ER): demos of earlier tasks, of which every batch is joined by
+    `snapshot_dir(out, epoch)`. `pretrained` (a policy directory, e.g. trained on another suite) starts
+    the fresh network from its weights wherever names and shapes agree (LIBERO-100: pre-train on
+    libero_90, then learn libero_10). `replay` (ER): demos of earlier tasks, of which every batch is joined by
     as many samples, drawn uniformly; `anchor` (EWC): its penalty is added to the loss; `masks` (PackNet):
     only the weights `masks.task` owns train. `tasks`, the fixed features, the init policy and these three
     are part of what a resumed checkpoint must match."""
@@ -202,6 +215,7 @@ class FineTuning:
     features: BCFeatures | None = None
     init_from: str | None = None
     snapshot_epochs: Collection[int] = ()
+    pretrained: str | None = None
     replay: DemoSet | None = None
     anchor: ElasticAnchor | None = None
     masks: WeightMasks | None = None
@@ -262,11 +276,15 @@ def train_policy(
     started = time.perf_counter()
     data = select_tasks(load_demos(paths, successful_only), tasks)
     init = read_artifact(init_from) if init_from is not None else None
+    if tune.pretrained is not None and init is not None:
+        raise UserInputError("train_policy: give init_from or pretrained, not both (init_from brings every weight)")
+    pretrained = read_artifact(tune.pretrained) if tune.pretrained is not None else None
     origin = {  # what this run starts from beyond the files and the config: recorded, and checked on resume
         "tasks": None if tasks is None else list(data.layouts),
         "features": None if features is None else _digest(features.to_dict()),
         # The start network by content, not by path: a moved or copied run directory still resumes.
         "init_from": None if init is None else {"model_sha256": init[2]["model_sha256"]},
+        "pretrained": None if pretrained is None else {"model_sha256": pretrained[2]["model_sha256"]},
         "successful_only": bool(successful_only),
         "continual": tune.continual(),
     }
@@ -295,6 +313,8 @@ def train_policy(
         )
     if init is not None:
         _start_from(net, init, model_spec, init_from)
+    if pretrained is not None and not _transfer(net, pretrained):
+        raise UserInputError(f"{tune.pretrained}: no layer of this policy fits the network trained here")
     masks = None if tune.masks is None else tune.masks.bind(net, init_from or out)
     net.to(device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
