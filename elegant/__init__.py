@@ -32,6 +32,8 @@ _LAZY = {
     "rate_interval": "elegant.evaluation.metrics",
     "success_with_violation": "elegant.evaluation.metrics",
     "run_lifelong": "elegant.evaluation.lifelong",
+    "run_lifelong_seeds": "elegant.evaluation.lifelong_table",
+    "lifelong_table": "elegant.evaluation.lifelong_table",
     "compare_runs": "elegant.reporting.report",
     "write_run_report": "elegant.reporting.report",
     "quickstart": "elegant.pipeline",

@@ -1,6 +1,7 @@
 """Base policies: the `Policy` protocol, adapters for callables / LeRobot / TorchRL, the BC-GMM policy, policy
-specs (`open_policy`: a directory, an entry point or a server), and openpi's websocket protocol both ways
-(`OpenPIPolicy`, `serve_policy`).
+specs (`open_policy`: a directory, an entry point or a server), openpi's websocket protocol both ways
+(`OpenPIPolicy`, `serve_policy`), and the lifelong algorithms' training mechanisms (`FineTuning` with a
+`replay_memory`, an `ElasticAnchor` or `WeightMasks`).
 
 The BC names load torch on first use (PEP 562 lazy attributes), so importing the protocol and adapters
 stays instant for commands that never touch a network.
@@ -38,6 +39,10 @@ _LAZY = {
     "BCPolicy": "elegant.policies.bc_policy",
     "load_policy": "elegant.policies.bc_policy",
     "train_policy": "elegant.policies.bc_train",
+    "FineTuning": "elegant.policies.bc_train",
+    "ElasticAnchor": "elegant.policies.continual",
+    "WeightMasks": "elegant.policies.continual",
+    "replay_memory": "elegant.policies.continual",
 }
 
 __all__ = [
@@ -45,6 +50,8 @@ __all__ = [
     "BCPolicy",
     "CallablePolicy",
     "ChunkedPolicy",
+    "ElasticAnchor",
+    "FineTuning",
     "GaussianCandidates",
     "LayoutSlice",
     "LeRobotPolicy",
@@ -55,6 +62,7 @@ __all__ = [
     "StateFn",
     "TORCHRL_LIBERO_STATE",
     "TorchRLPolicy",
+    "WeightMasks",
     "as_action",
     "as_policy",
     "chunk_of",
@@ -62,6 +70,7 @@ __all__ = [
     "lerobot_libero_state",
     "load_policy",
     "open_policy",
+    "replay_memory",
     "serve_policy",
     "train_policy",
 ]
