@@ -2,12 +2,13 @@
 
 Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved 0.2-0.3 m;
 or, `init@nudge`, up to 2 cm: fresh starts, not a robustness test), `language` (paraphrased or target-swapped
-instruction) and `env` (floor, wall and table swap). Each operator acts at the stage where the change belongs:
-before the env is built (which BDDL file, which instruction, which scene textures), right after it is built
-(colours), or after every reset (positions). The package's shipped LIBERO-PRO variants are used where they
-exist (`mode="shipped"`); by default new variants are generated from the seed, so the number of distinct
-perturbed tasks is unbounded. What each operator did is returned by `describe()` and recorded in `info` and
-episode metadata.
+instruction) and `env` (floor, wall and table swap); and LIBERO-PRO's language probe, `probe` (the
+instruction shuffled, replaced by an unrelated one, or emptied). Each operator acts at the stage where the
+change belongs: before the env is built (which BDDL file, which instruction, which scene textures), right
+after it is built (colours), or after every reset (positions). The package's shipped LIBERO-PRO variants are
+used where they exist (`mode="shipped"`); by default new variants are generated from the seed, so the number
+of distinct perturbed tasks is unbounded. What each operator did is returned by `describe()` and recorded
+in `info` and episode metadata.
 """
 
 from __future__ import annotations
@@ -274,6 +275,36 @@ class LanguagePerturbation(Perturbation):
         return new
 
 
+class ProbePerturbation(Perturbation):
+    """The language probe (LIBERO-PRO's evidence that policies ignore the instruction): the task and scene
+    stay, the instruction is corrupted: its words shuffled, replaced by another LIBERO task's instruction
+    (from libero_90, a different one), or emptied. A policy that succeeds as often under the probe as
+    without it did not use the instruction."""
+
+    axis = "probe"
+    modes = ("shuffled", "unrelated", "empty")
+
+    def plan(self, plan: BuildPlan) -> BuildPlan:
+        self._record["original"] = plan.instruction
+        rng = self.rng()
+        if self.mode == "shuffled":
+            words = plan.instruction.split()
+            order = rng.permutation(len(words))
+            if len(set(words)) > 1:
+                while [words[i] for i in order] == words:
+                    order = rng.permutation(len(words))
+            instruction = " ".join(words[i] for i in order)
+        elif self.mode == "unrelated":
+            from base_suites.suites import list_tasks
+
+            others = sorted({t.language for t in list_tasks("libero_90")} - {plan.instruction})
+            instruction = others[rng.integers(len(others))]
+        else:
+            instruction = ""
+        self._record["instruction"] = instruction
+        return BuildPlan(plan.task, instruction, plan.env_kwargs)
+
+
 class EnvPerturbation(Perturbation):
     """The scene changes around the task: floor and wall textures swapped, the table recoloured."""
 
@@ -303,7 +334,8 @@ class EnvPerturbation(Perturbation):
 
 
 PERTURBATIONS: dict[str, type[Perturbation]] = {
-    cls.axis: cls for cls in (ObjectPerturbation, InitPerturbation, LanguagePerturbation, EnvPerturbation)
+    cls.axis: cls
+    for cls in (ObjectPerturbation, InitPerturbation, LanguagePerturbation, EnvPerturbation, ProbePerturbation)
 }
 
 

@@ -415,6 +415,54 @@ def _eval(args: argparse.Namespace) -> dict:
     return {k: v for k, v in summary.items() if k != "per_task"}
 
 
+def _robustness_args(p: argparse.ArgumentParser) -> None:
+    from base_suites.runtime.settings import add_settings_arguments
+    from elegant.evaluation.config import EvalConfig, RobustnessConfig
+    from elegant.intervention.config import JITIConfig
+
+    p.add_argument("--suite", required=True, help="comma-separated suites, e.g. libero_object,libero_goal")
+    p.add_argument("--tasks", help="comma-separated task indices within every suite (default: all)")
+    p.add_argument("--policy", required=True, help=POLICY_HELP)
+    p.add_argument("--critic", help="critic directory (or comma-separated ones); required for jiti and always")
+    p.add_argument("--out", required=True, help="directory for the runs, robustness.json, report.md and the plot")
+    p.add_argument("--resume", action="store_true", help="skip finished runs and episodes in OUT")
+    add_settings_arguments(p, RobustnessConfig)
+    add_settings_arguments(p, EvalConfig, exclude=("jiti", "perturbation"))
+    add_settings_arguments(p, JITIConfig)
+    _workers_arg(p)
+    _compute_args(p)
+
+
+@command(
+    "robustness",
+    "LIBERO-PRO's robustness table (five axes and the language probe) from success and from ESR, in one command",
+)(_robustness_args)
+def _robustness(args: argparse.Namespace) -> dict:
+    from base_suites.runtime.settings import settings_from_args
+    from elegant.evaluation.config import EvalConfig, RobustnessConfig
+    from elegant.evaluation.robustness import run_robustness
+    from elegant.intervention.config import JITIConfig
+
+    config = RobustnessConfig(**settings_from_args(args, RobustnessConfig))
+    settings = {
+        **settings_from_args(args, EvalConfig, exclude=("jiti", "perturbation")),
+        **settings_from_args(args, JITIConfig),
+    }
+    result = run_robustness(
+        [s.strip() for s in args.suite.split(",")],
+        args.policy,
+        args.critic,
+        args.out,
+        config,
+        tasks=_task_list(args.tasks),
+        resume=args.resume,
+        workers=_workers(args),
+        compute=_compute(args),
+        **settings,
+    )
+    return {"out": args.out, "total": {name: result[name]["total"] for name in ("success", "elegant")}}
+
+
 def _serve_policy_args(p: argparse.ArgumentParser) -> None:
     from elegant.policies.protocol import add_policy_act_argument
 

@@ -109,7 +109,24 @@ def test_env_swap_changes_scene_style_and_table():
     env.close(), plain.close()
 
 
-@pytest.mark.parametrize("perturbation", ["init:2", "object:1,env:1,language:1"])
+def test_language_probe_corrupts_the_instruction_and_keeps_the_task():
+    plain = make_env("libero_object", 3, settle_steps=0)
+    words = sorted(plain.instruction.split())
+    shuffled = make_env("libero_object", 3, seed=0, perturbation="probe:1", settle_steps=0)
+    assert shuffled.instruction != plain.instruction and sorted(shuffled.instruction.split()) == words
+    unrelated = make_env("libero_object", 3, seed=0, perturbation="probe@unrelated", settle_steps=0)
+    assert unrelated.instruction != plain.instruction and unrelated.instruction
+    assert not set(unrelated.instruction.split()) >= set(plain.instruction.split())
+    empty = make_env("libero_object", 3, perturbation="probe@empty", settle_steps=0)
+    assert empty.instruction == "" and empty.metadata["instruction"] == ""
+    for e in (shuffled, unrelated, empty):
+        assert e.task == plain.task and e.metadata["goal"] == plain.metadata["goal"]
+        assert e.perturbations[0].describe()["original"] == plain.instruction
+        e.close()
+    plain.close()
+
+
+@pytest.mark.parametrize("perturbation", ["init:2", "object:1,env:1,language:1", "probe@empty"])
 def test_task_stays_solvable_under_perturbation(perturbation):
     from base_suites.experts import ScriptedExpert
 

@@ -153,6 +153,52 @@ class RolloutConfig:
         return with_overrides(self, settings, "rollouts")
 
 
+# LIBERO-PRO's five axes and the language probe, each as the perturbation (`base_suites.perturbations`) its
+# runs use; `shipped` replaces a generated variant with LIBERO-PRO's own files where they exist
+PRO_AXES = {
+    "object": "object",
+    "position": "init",
+    "semantic": "language",
+    "task": "language@target_swap",
+    "env": "env",
+}
+PROBE_AXES = {"probe_shuffled": "probe", "probe_unrelated": "probe@unrelated", "probe_empty": "probe@empty"}
+SHIPPED_AXES = {"object": "object@shipped", "position": "init@shipped", "semantic": "language@shipped"}
+
+
+@dataclass(frozen=True)
+class RobustnessConfig:
+    """What `elegant robustness` runs beside the evaluation settings (`elegant.evaluation.robustness`)."""
+
+    axes: tuple[str, ...] = setting(
+        (*PRO_AXES, *PROBE_AXES),
+        "LIBERO-PRO axes (object, position, semantic, task, env) and language probes (probe_shuffled, "
+        "probe_unrelated, probe_empty) to run beside the original tasks",
+    )
+    variants: Literal["generated", "shipped"] = setting(
+        "generated",
+        "generated: new variants drawn from the seed; shipped: LIBERO-PRO's own files where it ships them "
+        "(object, position, semantic; its task axis is always shipped)",
+    )
+
+    def __post_init__(self) -> None:
+        choices = (*PRO_AXES, *PROBE_AXES)
+        if not self.axes:
+            raise UserInputError(f"robustness: expected at least one axis of {', '.join(choices)}")
+        for axis in self.axes:
+            if axis not in choices:
+                raise unknown_choice("robustness axis", axis, choices)
+        if len(set(self.axes)) != len(self.axes):
+            raise UserInputError(f"robustness: an axis is listed twice in {','.join(self.axes)}")
+        if self.variants not in ("generated", "shipped"):
+            raise unknown_choice("robustness variants", self.variants, ("generated", "shipped"))
+
+    def perturbations(self) -> dict[str, str]:
+        """Each axis's perturbation spec, "ori" (no perturbation) first."""
+        specs = {**PRO_AXES, **PROBE_AXES, **(SHIPPED_AXES if self.variants == "shipped" else {})}
+        return {"ori": "", **{axis: specs[axis] for axis in self.axes}}
+
+
 LifelongAlgo = Literal["seql", "er", "ewc", "packnet", "multitask"]
 LIFELONG_ALGOS: tuple[str, ...] = get_args(LifelongAlgo)
 

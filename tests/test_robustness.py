@@ -1,0 +1,100 @@
+"""`elegant robustness` on the real simulator at tiny sizes: the runs it makes, LIBERO-PRO's table recomputed
+by hand from the episode records, resume, and the refusals before any work."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from annotations.collect import collect_demos
+from base_suites.runtime.errors import UserInputError
+from elegant.cli import main
+from elegant.evaluation.config import RobustnessConfig
+from elegant.evaluation.robustness import run_robustness
+from elegant.policies.bc_train import train_policy
+
+pytestmark = pytest.mark.sim
+SUITE = "libero_object"
+AXES = ("object", "position", "probe_empty")
+EVAL = {"mode": "base", "episodes": 2, "max_steps": 8, "seed": 0, "progress": False}
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory) -> str:
+    root = tmp_path_factory.mktemp("robustness")
+    demos = str(root / "demos.hdf5")
+    collect_demos(SUITE, [0], demos, episodes=1, quality="clean", seed=0, progress=False)
+    out = str(root / "policy")
+    train_policy([demos], out, epochs=1, chunk=1, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def run(policy, tmp_path_factory):
+    out = tmp_path_factory.mktemp("pro") / "run"
+    return out, run_robustness([SUITE], policy, None, out, RobustnessConfig(axes=AXES), tasks=[0], **EVAL)
+
+
+def records(run_dir) -> list[dict]:
+    return [json.loads(line) for line in (run_dir / "episodes.jsonl").read_text().splitlines()]
+
+
+def test_one_run_per_axis_with_its_perturbation(run):
+    out, result = run
+    expected = {"ori": None, "object": "object", "position": "init", "probe_empty": "probe@empty"}
+    for axis, perturbation in expected.items():
+        config = json.loads((out / SUITE / axis / "config.json").read_text())
+        assert config["perturbation"] == perturbation and config["episodes"] == 2 and config["seed"] == 0
+    # Every axis plays the same starts as the original.
+    starts = {axis: [r["init_index"] for r in records(out / SUITE / axis)] for axis in expected}
+    assert len({tuple(s) for s in starts.values()}) == 1
+    assert result["config"]["axes"] == {"ori": "", **{a: expected[a] for a in AXES}}
+
+
+def test_table_recomputed_by_hand_from_the_episode_records(run):
+    out, result = run
+    for name, field in (("success", "success"), ("elegant", "elegant")):
+        acc = {axis: np.mean([r[field] for r in records(out / SUITE / axis)]) for axis in ("ori", *AXES)}
+        row = result[name][SUITE]
+        assert row["acc_ori"] == acc["ori"]
+        for axis in ("object", "position"):
+            assert row["acc"][axis] == acc[axis] and row["gap"][axis] == acc["ori"] - acc[axis]
+        assert row["pro"] == pytest.approx((acc["object"] + acc["position"]) / 2)
+        assert row["probes"] == {"probe_empty": {"acc": acc["probe_empty"], "gap": acc["ori"] - acc["probe_empty"]}}
+        assert result[name]["total"] == row  # one suite: the total is its row
+    assert json.loads((out / "robustness.json").read_text()) == json.loads(json.dumps(result))
+    report = (out / "report.md").read_text()
+    assert "## From success" in report and "## From elegant success (ESR)" in report
+    assert (out / "robustness.png").stat().st_size > 0
+
+
+def test_resume_reruns_nothing_and_refuses_other_settings(run, policy):
+    out, result = run
+    files = list(out.rglob("episodes.jsonl"))
+    before = {p: p.stat().st_mtime_ns for p in files}
+    again = run_robustness([SUITE], policy, None, out, RobustnessConfig(axes=AXES), tasks=[0], resume=True, **EVAL)
+    assert again == result and {p: p.stat().st_mtime_ns for p in files} == before
+    with pytest.raises(UserInputError, match="field 'evaluation.episodes' is 2 but this run has 3"):
+        run_robustness(
+            [SUITE], policy, None, out, RobustnessConfig(axes=AXES), tasks=[0], resume=True, **{**EVAL, "episodes": 3}
+        )
+
+
+def test_refusals_before_any_work(policy, tmp_path, capsys):
+    with pytest.raises(UserInputError, match=r"the task axis of libero_object plays libero_object_task/0"):
+        run_robustness(
+            [SUITE], policy, None, tmp_path / "a", RobustnessConfig(axes=("object", "task")), tasks=[0], **EVAL
+        )
+    with pytest.raises(UserInputError, match="each axis sets its own perturbation"):
+        run_robustness([SUITE], policy, None, tmp_path / "b", tasks=[0], perturbation="init", **EVAL)
+    with pytest.raises(UserInputError, match="unknown robustness axis 'lighting'"):
+        RobustnessConfig(axes=("object", "lighting"))
+    with pytest.raises(UserInputError, match="no shipped LIBERO-PRO 'task' variant"):
+        run_robustness(["libero_90"], policy, None, tmp_path / "c", RobustnessConfig(axes=("task",)), tasks=[0], **EVAL)
+    args = ["robustness", "--suite", SUITE, "--tasks", "0", "--policy", policy, "--out", str(tmp_path / "d")]
+    assert main([*args, "--mode", "base", "--axes", "semantic,task"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "leave the axis out (--axes semantic)" in err
+    assert not any((tmp_path / d).exists() for d in "abcd")
