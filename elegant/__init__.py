@@ -34,6 +34,7 @@ _LAZY = {
     "run_lifelong": "elegant.evaluation.lifelong",
     "run_lifelong_seeds": "elegant.evaluation.lifelong_table",
     "lifelong_table": "elegant.evaluation.lifelong_table",
+    "run_robustness": "elegant.evaluation.robustness",
     "compare_runs": "elegant.reporting.report",
     "write_run_report": "elegant.reporting.report",
     "quickstart": "elegant.pipeline",

@@ -1,7 +1,7 @@
 """Running policies in the simulator: the evaluation runner (`evaluate`, with each episode's start fixed by
 `episode_start`), recorded rollouts for critic data (`collect_rollouts`), LIBERO's lifelong protocol
-(`run_lifelong`; over seeds `run_lifelong_seeds`; algorithms side by side `lifelong_table`), the episode
-log and the metrics computed from it. Names resolve on first use."""
+(`run_lifelong`; over seeds `run_lifelong_seeds`; algorithms side by side `lifelong_table`), LIBERO-PRO's
+robustness table (`run_robustness`), the episode log and the metrics computed from it. Names resolve on first use."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ _LAZY = {
     "collect_rollouts": "elegant.evaluation.rollouts",
     "run_lifelong": "elegant.evaluation.lifelong",
     "run_lifelong_seeds": "elegant.evaluation.lifelong_table",
+    "run_robustness": "elegant.evaluation.robustness",
     "lifelong_table": "elegant.evaluation.lifelong_table",
     "EpisodeLog": "elegant.evaluation.episode_log",
     "summarize": "elegant.evaluation.metrics",
