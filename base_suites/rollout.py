@@ -70,3 +70,21 @@ def run_episode(
         if terminated or truncated or run.stopped:
             break
     return run
+
+
+class ActionLog(StepObserver):
+    """The actions an episode executed, exactly as `env.step` received them: with the episode's start and
+    reset seed they replay it bit for bit (the env is deterministic), e.g. to render it afterwards."""
+
+    def __init__(self) -> None:
+        self.actions: list[np.ndarray] = []
+
+    def after_step(
+        self, env: Any, action: np.ndarray, obs: Observation, reward: float, info: Mapping[str, Any]
+    ) -> bool:
+        self.actions.append(np.array(action, dtype=np.float64))
+        return False
+
+    def array(self) -> np.ndarray:
+        """(T, 7) float64."""
+        return np.stack(self.actions) if self.actions else np.zeros((0, 7))

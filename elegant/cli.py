@@ -605,13 +605,21 @@ def _lifelong_table(args: argparse.Namespace) -> None:
 def _report_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("runs", nargs="+", help="run directories from elegant eval")
     p.add_argument("--out", help="directory for the comparison (markdown + PNG)")
+    p.add_argument(
+        "--videos",
+        type=int,
+        default=0,
+        metavar="K",
+        help="replay up to K episodes per group and run (made elegant, spoiled, inelegant successes) as MP4s "
+        "under OUT/videos/ (default: 0, none)",
+    )
 
 
 @command("report", "compare evaluation runs side by side")(_report_args)
 def _report(args: argparse.Namespace) -> None:
     from elegant.reporting.report import compare_runs
 
-    result = compare_runs(args.runs, args.out)
+    result = compare_runs(args.runs, args.out, videos=args.videos)
     print(result["markdown"])
 
 

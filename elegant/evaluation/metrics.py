@@ -119,6 +119,17 @@ def _intra_start_correlation(sizes: np.ndarray, means: np.ndarray, rate: float) 
     return float(np.clip((between - within) / (between + (n0 - 1.0) * within), 0.0, 1.0))
 
 
+def episode_pairs(before: Sequence[Record], after: Sequence[Record]) -> list[tuple[Record, Record]]:
+    """The episodes two runs share, in `after`'s order: same task and episode index, and the same init state
+    and reset seed (runs with the same seed start each episode alike)."""
+
+    def episode(r: Record) -> tuple:
+        return r["task"], int(r["episode"]), r.get("init_index"), r.get("seed")
+
+    earlier = {episode(r): r for r in before}
+    return [(earlier[episode(r)], r) for r in after if episode(r) in earlier]
+
+
 def paired_comparison(before: Sequence[Record], after: Sequence[Record], key: str) -> dict[str, Any]:
     """Two runs on the same starts (same seed, so the same init state and reset seed per episode), compared
     on the boolean record field `key` ("success" or "elegant").
@@ -130,11 +141,7 @@ def paired_comparison(before: Sequence[Record], after: Sequence[Record], key: st
     two-sided sign test of starts_better against starts_worse (1.0 where none differs). With one episode
     per start it is McNemar's exact test; repeated episodes of a start do not count as more evidence."""
 
-    def episode(r: Record) -> tuple:
-        return r["task"], int(r["episode"]), r.get("init_index"), r.get("seed")
-
-    earlier = {episode(r): r for r in before}
-    pairs = [(earlier[episode(r)], r) for r in after if episode(r) in earlier]
+    pairs = episode_pairs(before, after)
     if not pairs:
         return {"pairs": 0}
     a = np.array([bool(p[key]) for p, _ in pairs])

@@ -7,7 +7,8 @@ A run directory holds::
                      workers, in the order they finish)
     episodes_sorted.jsonl  the same lines by task and episode index (written at the end): line i of two
                      runs with the same seed and episodes then starts alike
-    traces/          <suite>_<task>_<episode>.json: JITI's decision log of each episode (for plots)
+    traces/          <suite>_<task>_<episode>.json: JITI's decision log of each episode (for plots) and what
+                     replays it (the executed actions and a digest of the final simulator state)
     summary.json     metrics overall and per task (written atomically at the end)
     report.md, *.png the human-readable report
 
@@ -35,7 +36,7 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import UserInputError, make_env, task_specs
-from base_suites.rollout import run_episode
+from base_suites.rollout import ActionLog, run_episode
 from base_suites.runtime.compute import ComputeConfig, device_kind, use_compute
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file, with_added_settings
 from base_suites.runtime.jobs import Workers, check_picklable, check_workers, run_jobs
@@ -49,6 +50,7 @@ from elegant.evaluation.metrics import summarize
 from elegant.intervention.config import mode_record
 from elegant.intervention.jiti import JITI
 from elegant.policies.specs import describe_policy, open_policy
+from elegant.reporting.replay import replay_record
 from elegant.reporting.report import write_run_report
 
 # the schema of RUN/config.json; records from before it had none and count as this one
@@ -153,13 +155,16 @@ def _remove_refused_run(out: Path) -> None:
         out.rmdir()
 
 
-def _run_episode(env, agent: JITI, monitor, init_index: int, reset_seed: int) -> tuple[dict[str, Any], Any]:
+def _run_episode(
+    env, agent: JITI, monitor, init_index: int, reset_seed: int
+) -> tuple[dict[str, Any], Any, dict[str, Any]]:
     """One rollout (`base_suites.rollout.run_episode`, judged by the ITC monitor); returns the episode's
-    numbers and the ITC verdict."""
+    numbers, the ITC verdict and what replays it (`elegant.reporting.replay`)."""
     obs, _ = env.reset(seed=reset_seed, options={"init_state": init_index})
     monitor.reset()
     agent.reset(env.metadata, seed=reset_seed)
-    run = run_episode(env, agent, obs, [monitor])
+    actions = ActionLog()
+    run = run_episode(env, agent, obs, [monitor, actions])
     verdict = monitor.verdict(bool(run.info["success"]))
     numbers = {
         "success": bool(verdict.success),
@@ -173,7 +178,7 @@ def _run_episode(env, agent: JITI, monitor, init_index: int, reset_seed: int) ->
         "env_step_time": run.env_time / run.steps,
         "perturbation": run.info.get("perturbation", []),
     }
-    return numbers, verdict
+    return numbers, verdict, replay_record(actions.array(), env.get_sim_state())
 
 
 def evaluate(
@@ -340,7 +345,7 @@ class EpisodeRunner:
         init_index, reset_seed = episode_start(
             config["seed"], suite, job.task_index, job.episode, env.task.n_init_states, config["init_states"]
         )
-        numbers, verdict = _run_episode(env, agent, self._monitor, init_index, reset_seed)
+        numbers, verdict, replay = _run_episode(env, agent, self._monitor, init_index, reset_seed)
         record = {
             "task": task_key(suite, job.task_index),
             "suite": suite,
@@ -358,6 +363,7 @@ class EpisodeRunner:
             "segments": {c: np.asarray(v, dtype=bool).tolist() for c, v in verdict.segments.items()},
             "events": [list(e) for e in verdict.events],
             "decisions": agent.trace(),
+            "replay": replay,
         }
         return record, trace
 

@@ -332,17 +332,25 @@ def _robustness(summaries: Sequence[Mapping[str, Any]], dirs: Sequence[Path]) ->
     return out
 
 
-def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike | None = None) -> dict[str, Any]:
+def compare_runs(
+    run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike | None = None, *, videos: int = 0
+) -> dict[str, Any]:
     """Side-by-side comparison of finished runs (`elegant report RUN_A RUN_B ...`).
 
     Returns {"runs": [{label, dir, config}], "markdown": str, "paired": [...], "robustness": {...}, "files":
     [...]}; "paired" compares every later run with the first on their shared starts
     (`elegant.evaluation.metrics.paired_comparison` of success and of elegant success). With
     `out`, writes out/comparison.md and out/comparison.png (grouped bars of success and ESR per task);
-    without it nothing is written.
+    without it nothing is written. `videos` K > 0 (needs `out`) also replays up to K episodes per group
+    and run (`elegant.reporting.videos`: made elegant, spoiled, inelegant successes) into out/videos/ and
+    lists them ("clips").
     """
     if not run_dirs:
         raise UserInputError("report: expected at least one run directory")
+    if videos < 0 or int(videos) != videos:
+        raise UserInputError(f"report: --videos must be a whole number >= 0, got {videos!r}")
+    if videos and out is None:
+        raise UserInputError("report: --videos writes MP4s; give --out DIR for them")
     dirs = [Path(d) for d in run_dirs]
     summaries, records = zip(*(load_run(d) for d in dirs))
     names = [d.name or str(d) for d in dirs]
@@ -405,6 +413,12 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
                 ],
             ),
         ]
+    clips: list[dict[str, Any]] = []
+    if videos:
+        from elegant.reporting.videos import clips_markdown, write_clips
+
+        clips = write_clips(dirs, labels, records, out, int(videos))
+        lines += clips_markdown(clips)
     markdown = "\n".join(lines) + "\n"
     files: list[Path] = []
     if out is not None:
@@ -428,5 +442,6 @@ def compare_runs(run_dirs: Sequence[str | os.PathLike], out: str | os.PathLike |
         "markdown": markdown,
         "paired": paired,
         "robustness": robustness,
-        "files": [str(f) for f in files],
+        "files": [str(f) for f in files] + [os.path.join(out, c["path"]) for c in clips],
+        "clips": clips,
     }
