@@ -90,7 +90,7 @@ def assert_png(path):
 def test_run_report_writes_markdown_and_plots(tmp_path):
     summary, records = make_run(tmp_path / "run", "jiti", [True, False, True, True])
     files = write_run_report(tmp_path / "run", summary, records)
-    assert {f.name for f in files} == {"report.md", "success_esr.png", "q_trace.png"}
+    assert {f.name for f in files} == {"report.md", "report.html", "success_esr.png", "q_trace.png"}
     assert_png(tmp_path / "run" / "success_esr.png")
     assert_png(tmp_path / "run" / "q_trace.png")
     md = (tmp_path / "run" / "report.md").read_text()
@@ -109,7 +109,7 @@ def test_run_report_writes_markdown_and_plots(tmp_path):
 def test_run_report_without_critic_has_no_q_trace(tmp_path):
     summary, records = make_run(tmp_path / "run", "base", [True, False], with_q=False)
     files = write_run_report(tmp_path / "run", summary, records)
-    assert [f.name for f in files] == ["report.md", "success_esr.png"]
+    assert [f.name for f in files] == ["report.md", "report.html", "success_esr.png"]
     assert (
         not (tmp_path / "run" / "q_trace.png").exists()
         and "Q trace" not in (tmp_path / "run" / "report.md").read_text()

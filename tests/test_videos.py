@@ -112,3 +112,84 @@ def test_video_is_written_whole(tmp_path):
     path = write_video(tmp_path / "clip.mp4", frames)
     assert len(imageio.mimread(path, memtest=False)) == 6
     assert [p.name for p in tmp_path.iterdir()] == ["clip.mp4"]
+
+
+def open_in_chromium(page, screenshot) -> dict:
+    """Open `page` in Debian's headless chromium over the DevTools protocol, wait until it has loaded and
+    its videos have their metadata (or failed), save a screenshot, and return what each <img> and <video>
+    loaded: {"images": [[src, naturalWidth]], "videos": [[src, readyState, error]]}."""
+    import base64
+    import socket
+    import subprocess
+    import time
+    import urllib.request
+
+    from websockets.sync.client import connect
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    profile = screenshot.parent / "chromium-profile"
+    browser = subprocess.Popen(
+        [shutil.which("chromium"), "--headless=new", "--no-sandbox", "--disable-gpu", "--mute-audio",
+         f"--remote-debugging-port={port}", f"--user-data-dir={profile}", "about:blank"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        for _ in range(100):
+            try:
+                targets = json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=1).read())
+                break
+            except OSError:
+                time.sleep(0.2)
+        target = next(t for t in targets if t["type"] == "page")
+        with connect(target["webSocketDebuggerUrl"], max_size=None) as ws:
+            ids = iter(range(1, 100))
+
+            def call(method, **params):
+                n = next(ids)
+                ws.send(json.dumps({"id": n, "method": method, "params": params}))
+                while True:
+                    message = json.loads(ws.recv(timeout=60))
+                    if message.get("id") == n:
+                        return message["result"]
+
+            call("Page.enable")
+            call("Page.navigate", url=page.resolve().as_uri())
+            while json.loads(ws.recv(timeout=60)).get("method") != "Page.loadEventFired":
+                pass
+            script = """new Promise(done => {
+                const videos = Array.from(document.querySelectorAll('video'));
+                const ready = () => videos.every(v => v.readyState >= 1 || v.error);
+                const report = () => done({
+                    images: Array.from(document.images).map(i => [i.getAttribute('src'), i.naturalWidth]),
+                    videos: videos.map(v => [v.getAttribute('src'), v.readyState, v.error ? v.error.code : null])});
+                let waited = 0;
+                const poll = () => (ready() || waited > 20000) ? report() : (waited += 100, setTimeout(poll, 100));
+                poll();
+            })"""
+            loaded = call("Runtime.evaluate", expression=script, awaitPromise=True, returnByValue=True)
+            shot = call("Page.captureScreenshot", format="png")
+            screenshot.write_bytes(base64.b64decode(shot["data"]))
+            return loaded["result"]["value"]
+    finally:
+        browser.kill()
+        browser.wait()
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None, reason="needs Debian's chromium (scripts/setup.sh installs it)")
+def test_the_html_page_loads_every_plot_and_video_in_a_browser(runs, tmp_path):
+    edited = tmp_path / "random"
+    shutil.copytree(runs / "random", edited)
+    lines = records(edited)
+    lines[0]["elegant"] = lines[0]["success"] = True
+    (edited / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    compare_runs([runs / "base", edited], tmp_path / "report", videos=1)
+    page = tmp_path / "report" / "comparison.html"
+    loaded = open_in_chromium(page, tmp_path / "page.png")
+    assert [src for src, _ in loaded["images"]] == ["comparison.png"]
+    assert all(width > 0 for _, width in loaded["images"]), loaded
+    assert [src for src, *_ in loaded["videos"]] == ["videos/made_elegant/libero_object_0_ep0_base_vs_random.mp4"]
+    assert all(state >= 1 and error is None for _, state, error in loaded["videos"]), loaded
+    screenshot = (tmp_path / "page.png").read_bytes()
+    assert screenshot.startswith(b"\x89PNG") and len(screenshot) > 10_000

@@ -61,7 +61,7 @@ from annotations.format import task_key
 from base_suites import get_task
 from base_suites.runtime.compute import ComputeConfig, use_compute
 from base_suites.runtime.errors import UserInputError
-from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
+from base_suites.runtime.io import atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
@@ -73,6 +73,7 @@ from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir
+from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, percent, save_figure
 
 # how reports name each algorithm (LIBERO's names)
@@ -399,4 +400,4 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
         "",
         "![learning curves](learning_curves.png)",
     ]
-    atomic_write(out / "report.md", "\n".join(lines) + "\n")
+    write_report(out / "report.md", "\n".join(lines) + "\n")

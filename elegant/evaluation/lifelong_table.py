@@ -29,7 +29,7 @@ import numpy as np
 
 from base_suites.runtime.compute import ComputeConfig, use_compute
 from base_suites.runtime.errors import UserInputError
-from base_suites.runtime.io import atomic_write, atomic_write_json, read_json_file
+from base_suites.runtime.io import atomic_write_json, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.outputs import check_output
@@ -42,6 +42,7 @@ from elegant.evaluation.lifelong import (
     plot_success_matrices,
     run_lifelong,
 )
+from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, save_figure
 
 SEEDS_FORMAT = "libero-elegant-lifelong-seeds/1"
@@ -182,7 +183,7 @@ def _write_seeds_report(out: Path, summary: dict[str, Any]) -> None:
         "",
         "![mean success matrices](success_matrix.png)",
     ]
-    atomic_write(out / "report.md", "\n".join(lines) + "\n")
+    write_report(out / "report.md", "\n".join(lines) + "\n")
 
 
 # ---- algorithms side by side ---------------------------------------------------------------------------
@@ -242,7 +243,7 @@ def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *,
         _plot_algorithms(table, out / "algorithms.png")
         _plot_all_matrices(table, out / "success_matrices.png")
         markdown = _table_markdown(table)
-        atomic_write(out / "table.md", markdown)
+        write_report(out / "table.md", markdown)
     return {**table, "markdown": markdown}
 
 

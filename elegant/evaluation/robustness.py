@@ -34,7 +34,7 @@ from annotations.format import task_key
 from base_suites import UserInputError, task_specs
 from base_suites.perturbations import parse_perturbations
 from base_suites.runtime.compute import ComputeConfig, use_compute
-from base_suites.runtime.io import atomic_write, atomic_write_json, changed_fields, read_json_file
+from base_suites.runtime.io import atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.outputs import check_output
@@ -42,6 +42,7 @@ from elegant.evaluation.config import PRO_AXES, EvalConfig, RobustnessConfig
 from elegant.evaluation.metrics import robustness_metrics
 from elegant.evaluation.runner import evaluate
 from elegant.policies.specs import describe_policy
+from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, percent, save_figure
 
 ROBUSTNESS_FORMAT = "libero-elegant-robustness/1"
@@ -191,7 +192,7 @@ def run_robustness(
         result = {"config": record, "runs": {s: {a: str(out / s / a) for a in specs} for s in suites}, **_table(runs)}
         atomic_write_json(out / "robustness.json", result)
         _plot(result, out / "robustness.png")
-        atomic_write(out / "report.md", _markdown(result))
+        write_report(out / "report.md", _markdown(result))
         return result
 
 

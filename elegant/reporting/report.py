@@ -26,6 +26,7 @@ from base_suites.runtime.io import atomic_write
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import paired_comparison, robustness_metrics, summarize
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
+from elegant.reporting.html import write_report
 
 
 def save_figure(fig, path: Path) -> Path:
@@ -245,8 +246,8 @@ def write_run_report(
     ]
     if trace is not None:
         lines += ["", f"## Q trace: {trace['task']}, episode {trace['episode']}", "", "![Q trace](q_trace.png)"]
-    atomic_write(run_dir / "report.md", "\n".join(lines) + "\n")
-    return [run_dir / "report.md", *files]
+    page = write_report(run_dir / "report.md", "\n".join(lines) + "\n")
+    return [run_dir / "report.md", page, *files]
 
 
 # ---- several runs ----------------------------------------------------------------------------------
@@ -433,8 +434,8 @@ def compare_runs(
                 interval = "success_ci95" if metric == "success_rate" else "esr_ci95"
                 intervals[f"{label} {name}"] = [b.get(interval, (np.nan, np.nan)) for b in blocks]
         files = [plot_bars(groups, series, "success and ESR per task", out / "comparison.png", intervals)]
-        atomic_write(out / "comparison.md", markdown + "\n![success and ESR per task](comparison.png)\n")
-        files.insert(0, out / "comparison.md")
+        page = write_report(out / "comparison.md", markdown + "\n![success and ESR per task](comparison.png)\n")
+        files[:0] = [out / "comparison.md", page]
     return {
         "runs": [
             {"label": label, "dir": str(d), "config": s["config"]} for label, d, s in zip(labels, dirs, summaries)
