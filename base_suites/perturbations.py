@@ -1,6 +1,7 @@
 """LIBERO-PRO perturbations as seeded, composable operators.
 
-Four axes, as in LIBERO-PRO: `object` (appearance of the task objects), `init` (task objects moved 0.2-0.3 m;
+Four axes, as in LIBERO-PRO: `object` (appearance of the task objects: colours, or `@texture` their
+textures), `init` (task objects moved 0.2-0.3 m;
 or, `init@nudge`, up to 2 cm: fresh starts, not a robustness test), `language` (paraphrased or target-swapped
 instruction) and `env` (floor, wall and table swap); and LIBERO-PRO's language probe, `probe` (the
 instruction shuffled, replaced by an unrelated one, or emptied). Each operator acts at the stage where the
@@ -125,10 +126,11 @@ def _task_entities(domain) -> list[str]:
 
 
 class ObjectPerturbation(Perturbation):
-    """Task objects change appearance: new colours (generated) or LIBERO-PRO's object swaps (shipped)."""
+    """Task objects change appearance: new colours (generated), another texture of the scene on each of
+    their textured materials (texture), or LIBERO-PRO's object swaps (shipped)."""
 
     axis = "object"
-    modes = ("generated", "shipped")
+    modes = ("generated", "texture", "shipped")
 
     def plan(self, plan: BuildPlan) -> BuildPlan:
         if self.mode == "shipped":
@@ -138,8 +140,12 @@ class ObjectPerturbation(Perturbation):
         return plan
 
     def after_build(self, domain) -> None:
-        if self.mode != "generated":
-            return
+        if self.mode == "generated":
+            self._recolour(domain)
+        elif self.mode == "texture":
+            self._retexture(domain)
+
+    def _recolour(self, domain) -> None:
         rng = self.rng()
         model = domain.sim.model._model
         colours = {}
@@ -149,6 +155,28 @@ class ObjectPerturbation(Perturbation):
                 model.mat_rgba[mat, :3] = rgb
             colours[entity] = [round(float(c), 3) for c in rgb]
         self._record["colours"] = colours
+
+    def _retexture(self, domain) -> None:
+        import mujoco
+
+        rng = self.rng(1)
+        model = domain.sim.model._model
+        rgb_role = int(mujoco.mjtTextureRole.mjTEXROLE_RGB)
+        flat = [t for t in range(model.ntex) if model.tex_type[t] == mujoco.mjtTexture.mjTEXTURE_2D]
+        textures = {}
+        for entity in _task_entities(domain):
+            materials = [m for m in _entity_materials(domain, entity) if model.mat_texid[m, rgb_role] >= 0]
+            own = {int(model.mat_texid[m, rgb_role]) for m in materials}
+            others = [t for t in flat if t not in own]
+            if not materials or not others:
+                continue
+            chosen = []
+            for mat in materials:
+                texture = others[rng.integers(len(others))]
+                model.mat_texid[mat, rgb_role] = texture
+                chosen.append(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_TEXTURE, texture))
+            textures[entity] = chosen
+        self._record["textures"] = textures
 
 
 class InitPerturbation(Perturbation):

@@ -109,6 +109,22 @@ def test_env_swap_changes_scene_style_and_table():
     env.close(), plain.close()
 
 
+def test_object_texture_swaps_task_object_textures_only():
+    import mujoco
+
+    env = make_env("libero_object", 0, seed=0, perturbation="object@texture", settle_steps=0)
+    plain = make_env("libero_object", 0, seed=0, settle_steps=0)
+    model, base = env.domain.sim.model._model, plain.domain.sim.model._model
+    role = int(mujoco.mjtTextureRole.mjTEXROLE_RGB)
+    changed = {mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_MATERIAL, m) for m in range(model.nmat)
+               if model.mat_texid[m, role] != base.mat_texid[m, role]}  # fmt: skip
+    record = env.perturbations[0].describe()["textures"]
+    assert set(record) == {"alphabet_soup_1", "basket_1"}  # the task's objects, nothing else
+    assert changed and all(name.startswith(("alphabet_soup_1", "basket_1")) for name in changed)
+    assert np.array_equal(env.reset(seed=0)[0]["state"], plain.reset(seed=0)[0]["state"])
+    env.close(), plain.close()
+
+
 def test_language_probe_corrupts_the_instruction_and_keeps_the_task():
     plain = make_env("libero_object", 3, settle_steps=0)
     words = sorted(plain.instruction.split())
@@ -126,7 +142,7 @@ def test_language_probe_corrupts_the_instruction_and_keeps_the_task():
     plain.close()
 
 
-@pytest.mark.parametrize("perturbation", ["init:2", "object:1,env:1,language:1", "probe@empty"])
+@pytest.mark.parametrize("perturbation", ["init:2", "object:1,env:1,language:1", "object@texture", "probe@empty"])
 def test_task_stays_solvable_under_perturbation(perturbation):
     from base_suites.experts import ScriptedExpert
 

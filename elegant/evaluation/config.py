@@ -156,7 +156,7 @@ class RolloutConfig:
 # LIBERO-PRO's five axes and the language probe, each as the perturbation (`base_suites.perturbations`) its
 # runs use; `shipped` replaces a generated variant with LIBERO-PRO's own files where they exist
 PRO_AXES = {
-    "object": "object",
+    "object": "object,object@texture",  # colours and textures: LIBERO-PRO's object axis changes appearance
     "position": "init",
     "semantic": "language",
     "task": "language@target_swap",
