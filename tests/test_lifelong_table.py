@@ -97,12 +97,13 @@ def test_seeds_of_different_runs_are_refused():
 def test_table_puts_algorithms_side_by_side_in_libero_order(tmp_path):
     runs = {algo: write_seeds(tmp_path / algo, algo) for algo in ("packnet", "seql", "multitask", "er")}
     table = lifelong_table([tmp_path / a for a in ("packnet", "seql", "multitask", "er")], tmp_path / "table")
-    assert list(table["algorithms"]) == ["seql", "er", "packnet", "multitask"]
-    er = table["algorithms"]["er"]
+    assert [a["algorithm"] for a in table["algorithms"]] == ["seql", "er", "packnet", "multitask"]
+    er = table["algorithms"][1]
     assert er["metrics"]["auc"]["mean"] == pytest.approx(np.mean([r["metrics"]["auc"] for r in runs["er"]]))
     assert er["algorithm_settings"] == {"er_memory": 1000}
     saved = json.loads((tmp_path / "table" / "table.json").read_text())
     assert saved == json.loads(json.dumps({k: v for k, v in table.items() if k != "markdown"}))
+    assert [a["algorithm"] for a in saved["algorithms"]] == ["seql", "er", "packnet", "multitask"]
     markdown = (tmp_path / "table" / "table.md").read_text()
     assert markdown == table["markdown"]
     row = next(line for line in markdown.splitlines() if line.startswith("| experience replay"))

@@ -226,8 +226,10 @@ def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *,
     table = {
         "config": {k: v for k, v in summaries[0]["config"].items() if k not in ignore},
         "seeds": summaries[0]["seeds"],
-        "algorithms": {
-            s["config"]["algorithm"]: {
+        # a list, in LIBERO's order (JSON objects are written with sorted keys)
+        "algorithms": [
+            {
+                "algorithm": s["config"]["algorithm"],
                 "path": s["path"],
                 "algorithm_settings": s["config"]["algorithm_settings"],
                 **{source: s[source] for source, _ in SOURCES},
@@ -235,7 +237,7 @@ def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *,
                 "S_elegant_mean": s["S_elegant_mean"],
             }
             for s in summaries
-        },
+        ],
     }
     with output_lock(out):
         out.mkdir(parents=True, exist_ok=True)
@@ -249,13 +251,10 @@ def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *,
 
 def _table_markdown(table: dict[str, Any]) -> str:
     cfg, algos = table["config"], table["algorithms"]
-    header = [
-        "algorithm",
-        *(f"{METRIC_LABELS[k]} {tag}" for _, tag in (("", "success"), ("", "ESR")) for k in METRIC_KEYS),
-    ]
+    header = ["algorithm", *(f"{METRIC_LABELS[k]} {tag}" for tag in ("success", "ESR") for k in METRIC_KEYS)]
     rows = [
-        [ALGORITHM_NAMES[name], *(_cell(entry[source][key]) for source, _ in SOURCES for key in METRIC_KEYS)]
-        for name, entry in algos.items()
+        [ALGORITHM_NAMES[e["algorithm"]], *(_cell(e[source][key]) for source, _ in SOURCES for key in METRIC_KEYS)]
+        for e in algos
     ]
     lines = [
         f"# Lifelong learning on {cfg['suite']}: LIBERO's algorithms, success and elegant success",
@@ -263,7 +262,7 @@ def _table_markdown(table: dict[str, Any]) -> str:
         f"- tasks in learning order: {', '.join(cfg['task_keys'])}",
         f"- {cfg['epochs']} epochs per task, {cfg['episodes']} episodes per evaluation, seeds "
         f"{', '.join(map(str, table['seeds']))}: mean ± standard deviation over seeds (n - 1)",
-        "- runs: " + ", ".join(f"{name}: {entry['path']}" for name, entry in algos.items()),
+        "- runs: " + ", ".join(f"{entry['algorithm']}: {entry['path']}" for entry in algos),
         "",
         markdown_table(header, rows),
         "",
@@ -280,16 +279,16 @@ def _plot_algorithms(table: dict[str, Any], path: Path) -> Path:
     """Grouped bars: one group per metric, one bar per algorithm, error bars one std over seeds."""
     from matplotlib.figure import Figure
 
-    algos = list(table["algorithms"])
+    algos = table["algorithms"]
     fig = Figure(figsize=(11, 3.8), layout="constrained")
     width = 0.8 / len(algos)
     for ax, (source, title) in zip(fig.subplots(1, 2, sharey=True), SOURCES):
-        for a, name in enumerate(algos):
-            spreads = [table["algorithms"][name][source][key] for key in METRIC_KEYS]
+        for a, entry in enumerate(algos):
+            spreads = [entry[source][key] for key in METRIC_KEYS]
             means = [np.nan if s["mean"] is None else s["mean"] for s in spreads]
             stds = [0.0 if s["std"] is None else s["std"] for s in spreads]
             x = np.arange(len(METRIC_KEYS)) + (a - (len(algos) - 1) / 2) * width
-            ax.bar(x, means, width, yerr=stds, capsize=3, label=name)
+            ax.bar(x, means, width, yerr=stds, capsize=3, label=entry["algorithm"])
         ax.set_xticks(range(len(METRIC_KEYS)), [METRIC_LABELS[k] for k in METRIC_KEYS])
         ax.axhline(0.0, color="k", lw=0.6)
         ax.set_title(f"from {title}", fontsize=10)
@@ -305,7 +304,8 @@ def _plot_all_matrices(table: dict[str, Any], path: Path) -> Path:
     K = len(table["config"]["task_keys"])
     fig = Figure(figsize=(2 * (1.2 + 0.45 * K), len(algos) * (0.9 + 0.4 * K)), layout="constrained")
     axes = np.atleast_2d(fig.subplots(len(algos), 2, squeeze=False))
-    for row, (name, entry) in zip(axes, algos.items()):
+    for row, entry in zip(axes, algos):
+        name = entry["algorithm"]
         for ax, key, title in zip(row, ("S_mean", "S_elegant_mean"), ("success", "ESR")):
             matrix = np.array([[np.nan if v is None else v for v in r] for r in entry[key]])
             image = ax.imshow(np.ma.masked_invalid(matrix), vmin=0.0, vmax=1.0, cmap="viridis")
