@@ -276,23 +276,26 @@ def _table_markdown(table: dict[str, Any]) -> str:
 
 
 def _plot_algorithms(table: dict[str, Any], path: Path) -> Path:
-    """Grouped bars: one group per metric, one bar per algorithm, error bars one std over seeds."""
+    """Grouped bars: one group per metric, one bar per algorithm, error bars one std over seeds (none for a
+    single seed); the legend sits outside the data."""
     from matplotlib.figure import Figure
 
     algos = table["algorithms"]
-    fig = Figure(figsize=(11, 3.8), layout="constrained")
+    fig = Figure(figsize=(12, 3.8), layout="constrained")
     width = 0.8 / len(algos)
-    for ax, (source, title) in zip(fig.subplots(1, 2, sharey=True), SOURCES):
+    panels = fig.subplots(1, 2, sharey=True)
+    for ax, (source, title) in zip(panels, SOURCES):
         for a, entry in enumerate(algos):
             spreads = [entry[source][key] for key in METRIC_KEYS]
             means = [np.nan if s["mean"] is None else s["mean"] for s in spreads]
-            stds = [0.0 if s["std"] is None else s["std"] for s in spreads]
+            stds = None if all(s["std"] is None for s in spreads) else [s["std"] or 0.0 for s in spreads]
             x = np.arange(len(METRIC_KEYS)) + (a - (len(algos) - 1) / 2) * width
-            ax.bar(x, means, width, yerr=stds, capsize=3, label=entry["algorithm"])
+            ax.bar(x, means, width, yerr=stds, capsize=3 if stds else 0, label=entry["algorithm"])
         ax.set_xticks(range(len(METRIC_KEYS)), [METRIC_LABELS[k] for k in METRIC_KEYS])
-        ax.axhline(0.0, color="k", lw=0.6)
+        ax.set_ylim(0, 1.05)
+        ax.set_ylabel("rate")
         ax.set_title(f"from {title}", fontsize=10)
-        ax.legend(fontsize=8)
+    panels[-1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return save_figure(fig, path)
 
 
