@@ -32,7 +32,7 @@ from tqdm import tqdm
 
 from annotations.format import task_key
 from base_suites import UserInputError, task_specs
-from base_suites.perturbations import parse_perturbations
+from base_suites.perturbations import BuildPlan, parse_perturbations
 from base_suites.runtime.compute import ComputeConfig, use_compute
 from base_suites.runtime.io import atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
@@ -54,17 +54,11 @@ def _variant_tasks(suite: str, tasks: Sequence[int | str] | None, spec: str) -> 
     the suite ships none)."""
     keys = []
     for task in task_specs(suite, tasks):
-        plan = task
+        plan = BuildPlan(task, task.language)
         for operator in parse_perturbations(spec):
-            plan = _planned_task(operator, plan)
-        keys.append(task_key(plan.suite, plan.index))
+            plan = operator.plan(plan)
+        keys.append(task_key(plan.task.suite, plan.task.index))
     return keys
-
-
-def _planned_task(operator: Any, task: Any) -> Any:
-    from base_suites.perturbations import BuildPlan
-
-    return operator.plan(BuildPlan(task, task.language)).task
 
 
 def _model_tasks(spec: Any) -> list[str] | None:
