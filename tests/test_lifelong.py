@@ -296,6 +296,9 @@ def test_seeds_from_the_command_line_repeat_the_single_run_per_seed(run, demos, 
     assert "seeds [0, 1] but this run has [0, 2]" in capsys.readouterr().err
     assert main(args) == 2  # a finished output is not started again
     assert "seeds.json: exists" in capsys.readouterr().err
+    single = [a if a != str(out) else str(run[0]) for a in args]
+    assert main([*single, "--resume"]) == 2
+    assert "holds a single lifelong run (config.json); resume it without --seeds" in capsys.readouterr().err
     bad = [a if a != "0,1" else "0,2" for a in args[:-2]] + ["--seeds", "0,1"]
     bad[bad.index(str(out))] = str(tmp_path / "bad")
     assert main(bad) == 2 and "no demos of task libero_object/2" in capsys.readouterr().err

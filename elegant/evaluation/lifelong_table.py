@@ -125,6 +125,8 @@ def run_lifelong_seeds(
     out = Path(out)
     record = {"format": SEEDS_FORMAT, "seeds": seeds}
     check_output(str(out), "dir", resume=resume, results=("seeds.json", "config.json", "lifelong.json"))
+    if (out / "config.json").exists():
+        raise UserInputError(f"{out}: holds a single lifelong run (config.json); resume it without --seeds")
     with output_lock(out):
         if resume and (out / "seeds.json").exists():
             before = read_json_file(out / "seeds.json", "lifelong seeds")
