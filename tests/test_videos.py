@@ -41,6 +41,17 @@ def records(run_dir) -> list[dict]:
     return [json.loads(line) for line in (run_dir / "episodes.jsonl").read_text().splitlines()]
 
 
+def made_elegant_copy(runs, tmp_path):
+    """A copy of the random run whose first episode is marked a success and elegant: beside the base run
+    that pair is "made elegant" and gets a clip. Returns the copy and its records."""
+    edited = tmp_path / "random"
+    shutil.copytree(runs / "random", edited)
+    lines = records(edited)
+    lines[0]["elegant"] = lines[0]["success"] = True
+    (edited / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    return edited, lines
+
+
 def test_a_replayed_episode_ends_in_the_recorded_state(runs):
     record = records(runs / "random")[1]
     replay = replay_episode(runs / "random", record, size=64)
@@ -85,12 +96,7 @@ def test_clips_are_chosen_by_group_from_paired_starts():
 def test_report_writes_side_by_side_clips(runs, tmp_path):
     import imageio.v2 as imageio
 
-    # Mark the first episode elegant in the random run only: that pair is "made elegant" and gets a clip.
-    edited = tmp_path / "random"
-    shutil.copytree(runs / "random", edited)
-    lines = records(edited)
-    lines[0]["elegant"] = lines[0]["success"] = True
-    (edited / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    edited, lines = made_elegant_copy(runs, tmp_path)
     result = compare_runs([runs / "base", edited], tmp_path / "report", videos=1)
     made = [c for c in result["clips"] if c["group"] == "made_elegant"]
     assert len(made) == 1 and made[0]["episode"] == lines[0]["episode"]
@@ -179,11 +185,7 @@ def open_in_chromium(page, screenshot) -> dict:
 
 @pytest.mark.skipif(shutil.which("chromium") is None, reason="needs Debian's chromium (scripts/setup.sh installs it)")
 def test_the_html_page_loads_every_plot_and_video_in_a_browser(runs, tmp_path):
-    edited = tmp_path / "random"
-    shutil.copytree(runs / "random", edited)
-    lines = records(edited)
-    lines[0]["elegant"] = lines[0]["success"] = True
-    (edited / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in lines))
+    edited, _ = made_elegant_copy(runs, tmp_path)
     compare_runs([runs / "base", edited], tmp_path / "report", videos=1)
     page = tmp_path / "report" / "comparison.html"
     loaded = open_in_chromium(page, tmp_path / "page.png")

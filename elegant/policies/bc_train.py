@@ -364,7 +364,8 @@ def train_policy(
             desc="train-policy",
             unit="batch",
         )
-        frozen = {name: p.detach().clone() for name, p in net.named_parameters()} if masks is not None else None
+        restore_frozen = None if masks is None else masks.freeze(net)
+        anchor = None if tune.anchor is None else tune.anchor.to(device)
         net.train()
         for epoch in range(start_epoch, cfg.epochs):
             total = 0.0
@@ -376,16 +377,14 @@ def train_policy(
                         torch.cat(pair) for pair in zip((x, actions), replay.batch(drawn, cfg.obs_noise, generator))
                     )
                 loss = net.nll(x.to(device), actions.to(device)).mean()
-                objective = loss if tune.anchor is None else loss + tune.anchor.penalty(net)
+                objective = loss if anchor is None else loss + anchor.penalty(net)
                 optimizer.zero_grad(set_to_none=True)
                 objective.backward()
                 if cfg.grad_clip > 0:
                     torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-                if masks is not None:
-                    masks.hold(net)
                 optimizer.step()
-                if masks is not None:
-                    masks.restore(net, frozen)
+                if restore_frozen is not None:
+                    restore_frozen()
                 scheduler.step()
                 total += loss.item() * len(index)
                 bar.update(1)

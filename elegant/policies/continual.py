@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import io
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,13 +106,19 @@ class ElasticAnchor:
     weight: float
 
     def penalty(self, net: nn.Module) -> torch.Tensor:
-        """lambda * sum over parameters of F * (theta - theta*)^2: 0 at the anchor, growing with distance."""
-        total = None
-        for name, param in net.named_parameters():
-            fisher = self.fisher[name].to(param.device)
-            term = (fisher * (param - self.anchor[name].to(param.device)).square()).sum()
-            total = term if total is None else total + term
-        return self.weight * total
+        """lambda * sum over parameters of F * (theta - theta*)^2: 0 at the anchor, growing with distance.
+        F and theta* must be on `net`'s device (`to`)."""
+        return self.weight * sum(
+            (self.fisher[name] * (param - self.anchor[name]).square()).sum() for name, param in net.named_parameters()
+        )
+
+    def to(self, device: torch.device | str) -> ElasticAnchor:
+        """This anchor with F and theta* on `device` (once per training run, not per step)."""
+        return ElasticAnchor(
+            {k: v.to(device) for k, v in self.fisher.items()},
+            {k: v.to(device) for k, v in self.anchor.items()},
+            self.weight,
+        )
 
     def digest(self) -> str:
         return tensor_digest({**{f"F.{k}": v for k, v in self.fisher.items()}, **self.anchor}) + f":{self.weight!r}"
@@ -168,9 +174,8 @@ class WeightMasks:
 
     `claim_free`: the task starts here and takes every free weight (LIBERO's `start_task`); without it, as
     in the fine-tuning after pruning, pruned weights stay free and zero. `owner` may be empty before the
-    first task; `bind` fills it in for a network. While `task` trains, `hold` zeroes the gradients of every
-    weight it does not own and of every bias, and `restore` puts those values back after the optimiser step
-    (so weight decay cannot move them either)."""
+    first task; `bind` fills it in for a network. While `task` trains, `freeze` keeps every weight it does
+    not own and every bias at its starting value."""
 
     owner: dict[str, torch.Tensor]
     task: int
@@ -191,28 +196,21 @@ class WeightMasks:
     def trainable(self, name: str) -> torch.Tensor:
         return self.owner[name] == self.task + 1
 
-    def hold(self, net: nn.Module) -> None:
-        """After backward and clipping: no gradient reaches a weight `task` does not own, nor any bias."""
-        weights = _linear_weights(net)
-        for name, param in net.named_parameters():
-            if param.grad is None:
-                continue
-            if name in weights:
-                param.grad.mul_(self.trainable(name).to(param.grad.device))
-            else:
-                param.grad.zero_()
+    def freeze(self, net: nn.Module) -> Callable[[], None]:
+        """Call after `net` is on its device and in its starting state; returns what to call after every
+        optimiser step: it puts back every value `task` may not change (the weights it does not own and
+        every bias), so neither gradients nor weight decay move them. Adam updates each element on its
+        own, so the weights `task` owns train as if the others had no gradient."""
+        params = dict(net.named_parameters())
+        frozen = {name: p.detach().clone() for name, p in params.items()}
+        keep = {name: self.trainable(name).to(frozen[name].device) for name in _linear_weights(net)}
 
-    def restore(self, net: nn.Module, frozen: dict[str, torch.Tensor]) -> None:
-        """After the optimiser step: every value `task` may not change is its value in `frozen` (the
-        network's parameters as training started)."""
-        weights = _linear_weights(net)
-        with torch.no_grad():
-            for name, param in net.named_parameters():
-                if name in weights:
-                    keep = self.trainable(name).to(param.device)
-                    param.copy_(torch.where(keep, param, frozen[name]))
-                else:
-                    param.copy_(frozen[name])
+        def restore() -> None:
+            with torch.no_grad():
+                for name, param in params.items():
+                    param.copy_(torch.where(keep[name], param, frozen[name]) if name in keep else frozen[name])
+
+        return restore
 
     def prune(self, net: nn.Module, fraction: float) -> WeightMasks:
         """Free the `fraction` of `task`'s weights smallest in magnitude, per layer, and zero them in `net`
