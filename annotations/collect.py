@@ -264,7 +264,7 @@ class EpisodeRecorder:
         env, spec, source = self._env, self._spec, self.source
         init, reset_seed = source.start(spec, job.episode)
         obs, _ = env.reset(seed=reset_seed, options={"init_state": init})
-        layout = env.fixture_layout()
+        layout, geometry = env.fixture_layout(), env.metadata["goal_geometry"]
         source.begin(env, job.episode, reset_seed)
         record = record_episode(env, source, obs)
         demo = Demo(
@@ -288,6 +288,7 @@ class EpisodeRecorder:
                 "perturbation": record["perturbation"],
                 "reset_seed": reset_seed,
                 "fixture_layout": layout,
+                "goal_geometry": geometry,
                 **source.episode_attrs(),
             },
         )

@@ -23,7 +23,16 @@ from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write
 from base_suites.runtime.locks import output_lock
 
-_JSON_ATTRS = ("knobs", "knob_events", "perturbation", "violated", "fixture_layout", "rollout", "explored_steps")
+_JSON_ATTRS = (
+    "knobs",
+    "knob_events",
+    "perturbation",
+    "violated",
+    "fixture_layout",
+    "goal_geometry",
+    "rollout",
+    "explored_steps",
+)
 
 
 @dataclass

@@ -2,23 +2,33 @@
 
 Each LIBERO task has its own low-dimensional state layout (its own objects). Multi-task models (the BC
 policy, the critic) take the state zero-padded to the widest layout they were trained on, followed by
-a one-hot of the task. The encoder remembers the exact layout of every task it knows, so a model can
-refuse an env whose layout differs instead of silently reading the wrong numbers.
+a one-hot of the task ("task-onehot"). The encoder remembers the exact layout of every task it knows, so
+a model can refuse an env whose layout differs instead of silently reading the wrong numbers. The other
+encoding, "goal-relative" (`annotations.goal_features`), names no task and binds to any it can encode.
+
+Both answer `check_env(metadata) -> context` (refusing with one line) and `encode(states, context)`;
+`state_dim` leading entries of their features are continuous (normalised by the models), the rest binary.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
 from annotations.format import task_key
-from base_suites.runtime.errors import UserInputError
+from annotations.goal_features import GoalFeatureEncoder
+from base_suites.runtime.errors import UserInputError, unknown_choice
+
+Encoding = Literal["task-onehot", "goal-relative"]
+ENCODINGS: tuple[str, ...] = get_args(Encoding)
 
 
 class TaskFeatureEncoder:
     """Maps (state, task) to one float32 vector: padded state then task one-hot."""
+
+    kind = "task-onehot"
 
     def __init__(self, layouts: Mapping[str, list[list[Any]]]) -> None:
         if not layouts:
@@ -67,3 +77,24 @@ class TaskFeatureEncoder:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> TaskFeatureEncoder:
         return cls(data["layouts"])
+
+
+FeatureEncoder = TaskFeatureEncoder | GoalFeatureEncoder
+
+
+def make_encoder(encoding: str, layouts: Mapping[str, list[list[Any]]]) -> FeatureEncoder:
+    """The encoder `encoding` names, for models trained on the tasks of `layouts` ({task key: state layout})."""
+    if encoding == "task-onehot":
+        return TaskFeatureEncoder(layouts)
+    if encoding == "goal-relative":
+        if not layouts:
+            raise UserInputError("no tasks to encode: the dataset holds no demos")
+        return GoalFeatureEncoder(layouts)
+    raise unknown_choice("encoding", encoding, ENCODINGS)
+
+
+def encoder_from_dict(data: Mapping[str, Any]) -> FeatureEncoder:
+    """The encoder a saved model recorded (`to_dict`); models from before the goal encoding hold layouts."""
+    if data.get("kind", "task-onehot") == "goal-relative":
+        return GoalFeatureEncoder.from_dict(data)
+    return TaskFeatureEncoder.from_dict(data)

@@ -12,7 +12,9 @@ One file holds demos of one or more tasks::
                                           init_state_index, seed, knobs (JSON), expert_version, success,
                                           perturbation (JSON list), reset_seed, fixture_layout (JSON
                                           {fixture: [x, y, z, qw, qx, qy, qz]}: where LIBERO placed
-                                          the fixtures, which `states` does not hold);
+                                          the fixtures, which `states` does not hold),
+                                          goal_geometry (JSON: where the goal's regions and
+                                          articulations stand, `base_suites.goal_geometry`);
                                           annotated files add: elegant, violated (JSON list of criteria)
         actions        (T, 7)  float64  OSC_POSE delta + gripper, in [-1, 1]
         states         (T, S)  float64  flattened MuJoCo state (time, qpos, qvel) before each action

@@ -44,8 +44,8 @@ def discounted_return_to_go(rewards: np.ndarray, gamma: float) -> np.ndarray:
     return out.astype(np.float32)
 
 
-def replay_verdict(env: LiberoEnv, monitor: ITCMonitor, demo: Demo) -> EpisodeVerdict:
-    """ITC labels of one demo from its stored states (see module docstring)."""
+def start_replay(env: LiberoEnv, demo: Demo) -> None:
+    """Put `env` where the demo started: its init state and reset seed, its fixtures, its first stored state."""
     init = demo.attrs.get("init_state_index")
     valid_init = isinstance(init, (int, np.integer)) and 0 <= int(init) < env.task.n_init_states
     # The recorded reset seed rebuilds the recorded scene (fixtures, perturbation placements) where the
@@ -57,6 +57,11 @@ def replay_verdict(env: LiberoEnv, monitor: ITCMonitor, demo: Demo) -> EpisodeVe
         except UserInputError as e:
             raise UserInputError(f"data/{demo.name} attribute 'fixture_layout': {e}") from None
     env.set_sim_state(demo.states[0])
+
+
+def replay_verdict(env: LiberoEnv, monitor: ITCMonitor, demo: Demo) -> EpisodeVerdict:
+    """ITC labels of one demo from its stored states (see module docstring)."""
+    start_replay(env, demo)
     monitor.reset()
     success = goal_reached = False
     for t in range(demo.num_samples):
@@ -121,11 +126,17 @@ class _Replayer:
         self.source = DemoFile(path)
         self.pool = _EnvPool(params, overrides_dir, path)
 
-    def __call__(self, job: tuple[int, str]) -> EpisodeVerdict:
+    def __call__(self, job: tuple[int, str]) -> tuple[EpisodeVerdict, dict]:
+        """The demo's verdict and its goal geometry (recorded by collection; found at its start for files
+        from before, where the replay stands at the demo's first state)."""
         demo = self.source.demo(job[1])
         env, monitor = self.pool.get(demo)
         try:
-            return replay_verdict(env, monitor, demo)
+            geometry = demo.attrs.get("goal_geometry")
+            if not geometry:
+                start_replay(env, demo)
+                geometry = env.goal_geometry()
+            return replay_verdict(env, monitor, demo), geometry
         except UserInputError as e:
             raise UserInputError(f"{self.path}: {e}") from None
 
@@ -134,10 +145,10 @@ class _Replayer:
         self.source.close()
 
 
-def _labelled(demo: Demo, verdict: EpisodeVerdict, gamma: float) -> Demo:
+def _labelled(demo: Demo, verdict: EpisodeVerdict, geometry: dict, gamma: float) -> Demo:
     reward = verdict.elegance_reward
     attrs = {k: v for k, v in demo.attrs.items() if k != "num_samples"}
-    attrs.update(success=verdict.success, elegant=verdict.elegant, violated=verdict.violated)
+    attrs.update(success=verdict.success, elegant=verdict.elegant, violated=verdict.violated, goal_geometry=geometry)
     return Demo(
         name=demo.name,
         actions=demo.actions,
@@ -231,11 +242,11 @@ def annotate_file(
             replayer = partial(_Replayer, params, overrides_dir, in_path)
             with run_jobs(replayer, jobs, workers) as results:
                 ordered = in_order(results, lambda job: job[0], first=done_before)
-                for (_, name), verdict in tqdm(
+                for (_, name), (verdict, geometry) in tqdm(
                     ordered, total=len(jobs), desc="annotate", unit="demo", disable=not progress
                 ):
                     verdict = apply_human_labels(verdict, human.get(name, []))
-                    writer.append(_labelled(source.demo(name), verdict, gamma))
+                    writer.append(_labelled(source.demo(name), verdict, geometry, gamma))
                     records.append(
                         {"success": verdict.success, "elegant": verdict.elegant, "violated": verdict.violated}
                     )

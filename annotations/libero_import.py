@@ -136,7 +136,9 @@ def replay_states(env, states: np.ndarray, actions: np.ndarray, layout: dict | N
     env.reset(seed=0, options={"init_state": 0})
     if layout:
         env.set_fixture_layout(layout)
-    obs = np.array([env.set_sim_state(s)["state"] for s in states])
+    obs = np.array([env.set_sim_state(s)["state"] for s in states[:1]])
+    geometry = env.goal_geometry()  # at the first state, as a recording's reset records it
+    obs = np.concatenate([obs, [env.set_sim_state(s)["state"] for s in states[1:]]]) if len(states) > 1 else obs
     env.set_sim_state(states[-1])
     last_obs, _, _, _, info = env.step(actions[-1])
     next_obs = np.concatenate([obs[1:], last_obs["state"][None]], axis=0)
@@ -152,5 +154,10 @@ def replay_states(env, states: np.ndarray, actions: np.ndarray, layout: dict | N
         next_obs=next_obs,
         rewards=rewards,
         dones=dones,
-        attrs={"success": bool(info["success"]), "perturbation": [], "fixture_layout": env.fixture_layout()},
+        attrs={
+            "success": bool(info["success"]),
+            "perturbation": [],
+            "fixture_layout": env.fixture_layout(),
+            "goal_geometry": geometry,
+        },
     )

@@ -27,6 +27,7 @@ import numpy as np
 
 from base_suites._libero import libero_modules
 from base_suites.control import PHYSICS, FastControl
+from base_suites.goal_geometry import goal_geometry
 from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
 from base_suites.rotations import quat_to_axis_angle
 from base_suites.runtime.errors import UserInputError, unknown_choice
@@ -196,6 +197,10 @@ class LiberoEnv(gym.Env):
         self.domain.sim.forward()  # body poses in step with qpos (see step())
         self._last_raw = raw if raw is not None else self._camera_observations()
         self._steps = 0
+        try:
+            self.metadata["goal_geometry"] = self.goal_geometry()
+        except UserInputError as e:  # only the goal encoding needs it: it refuses this env with the reason
+            self.metadata["goal_geometry"] = {"error": str(e)}
         return self._observation(self._last_raw), self._info(bool(self._env.check_success()))
 
     def _clear_solver_state(self) -> None:
@@ -277,6 +282,11 @@ class LiberoEnv(gym.Env):
         an axis-angle vector, the two gripper joints."""
         view = self.sim
         return np.concatenate([view.eef_position(), quat_to_axis_angle(view.hand_quaternion()), view.gripper_joints()])
+
+    def goal_geometry(self) -> dict[str, Any]:
+        """Where the goal's regions and articulations stand in the current scene (`base_suites.goal_geometry`);
+        `reset` records the episode's in `metadata["goal_geometry"]`, demo files in each demo's attrs."""
+        return goal_geometry(self.sim, self.task.goal)
 
     def goal_status(self) -> dict[str, bool]:
         """Truth value of each goal predicate, keyed like 'on(bowl_1,plate_1)'."""

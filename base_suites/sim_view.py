@@ -230,18 +230,20 @@ class SimView:
         """+1 when an articulated fixture or object opens as its joint position grows, -1 when it opens
         as it shrinks, from LIBERO's own open and close ranges: cabinets open towards negative positions,
         and so does the microwave's door, whose hinge axis points up."""
-        ranges = self._articulation_ranges(entity)
+        ranges = self.articulation_ranges(entity)
         return 1.0 if np.mean(ranges["default_open_ranges"]) > np.mean(ranges["default_close_ranges"]) else -1.0
 
     def open_position(self, entity: str) -> float:
         """The joint position at which LIBERO starts calling an articulated fixture or object open (the
         edge of its open range nearest the closed one)."""
-        bounds = self._articulation_ranges(entity)["default_open_ranges"]
+        bounds = self.articulation_ranges(entity)["default_open_ranges"]
         return float(min(bounds) if self.opening_sign(entity) > 0 else max(bounds))
 
-    def _articulation_ranges(self, entity: str) -> dict:
+    def articulation_ranges(self, entity: str) -> dict:
         """LIBERO's own open and close ranges of an articulated fixture or object."""
-        return {**self._domain.objects_dict, **self._domain.fixtures_dict}[entity].object_properties["articulation"]
+        return {**self._domain.objects_dict, **self._domain.fixtures_dict}[entity].object_properties.get(
+            "articulation", {}
+        )
 
     def joint_type(self, name: str) -> str:
         """'free', 'ball', 'slide' or 'hinge'."""

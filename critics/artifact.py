@@ -1,7 +1,7 @@
 """The trained critic on disk and at run time.
 
 A critic directory holds `critic.pt` (the `TwinQNetwork` state_dict) and `critic.json` (how to rebuild
-and feed it: network config, the `TaskFeatureEncoder` layouts, observation normalisation, per-step
+and feed it: network config, the state encoding (`annotations.features`), observation normalisation, per-step
 action bounds, the chunk length of the actions it scores, gamma, the training config and the library
 versions). `load(dir)` returns a `Critic`, which
 scores actions with the module's plain tensors under `torch.inference_mode`, without TensorDicts,
@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from threadpoolctl import ThreadpoolController
 
-from annotations import TaskFeatureEncoder
+from annotations import FeatureEncoder, GoalContext, encoder_from_dict
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, library_versions, read_artifact_config
 from critics.networks import TwinQNetwork
@@ -49,15 +49,17 @@ class _Binding:
     first layer's state part is clip((x - mean) / std) @ W[:state_size] + (bias + t @ W[state_size:]),
     with t the normalised fixed columns: `q` needs one small normalise-and-clip and one small matmul.
     Both critics' columns sit side by side (critic c in columns c*H:(c+1)*H), so that matmul serves the
-    pair.
+    pair. The goal-relative encoding is no such affine map: its binding keeps the episode's `context`,
+    `q` encodes the state first, and the columns are the whole encoding (the binary ones unscaled).
     """
 
     task: str
     state_size: int
-    state_mean: np.ndarray  # (state_size,)
-    state_inv_std: np.ndarray  # (state_size,)
-    state_weight: np.ndarray  # (state_size, C * H)
+    state_mean: np.ndarray  # (columns,)
+    state_inv_std: np.ndarray  # (columns,)
+    state_weight: np.ndarray  # (columns, C * H)
     state_bias: np.ndarray  # (C * H,)
+    context: GoalContext | None = None  # the goal-relative encoding's episode plan
 
 
 def _blas_operand(tensor: torch.Tensor) -> np.ndarray:
@@ -149,7 +151,7 @@ class Critic:
     def __init__(
         self,
         network: TwinQNetwork,
-        encoder: TaskFeatureEncoder,
+        encoder: FeatureEncoder,
         normalization: Normalization,
         config: Mapping[str, Any] | None = None,
         path: str = "critic",
@@ -183,7 +185,21 @@ class Critic:
         return list(self.encoder.tasks)
 
     def _binding_for(self, metadata: Mapping[str, Any]) -> _Binding:
-        key = self.encoder.check_env(metadata, self.path)
+        context = self.encoder.check_env(metadata, self.path)
+        if isinstance(context, GoalContext):
+            binary = self.encoder.dim - self.encoder.state_dim
+            return _Binding(
+                context.task,
+                context.state_size,
+                np.concatenate([self.normalization.obs_mean, np.zeros(binary, dtype=np.float32)]),
+                np.concatenate([1.0 / self.normalization.obs_std, np.ones(binary, dtype=np.float32)]).astype(
+                    np.float32
+                ),
+                _blas_operand(_side_by_side(self.network.obs_weight.detach())),
+                self.network.first_bias.detach()[:, 0, :].reshape(-1).numpy().astype(np.float32),
+                context,
+            )
+        key = context
         size = sum(s for _, s in self.encoder.layouts[key])
         fixed = torch.from_numpy(
             self.normalization.observations(self.encoder.encode(np.zeros(size, dtype=np.float32), key))
@@ -200,9 +216,11 @@ class Critic:
         )
 
     def bind(self, metadata: Mapping[str, Any]) -> Critic:
-        """Score states of the env described by `metadata` (suite, task_index, state_layout) from now on.
+        """Score states of the env described by `metadata` (suite, task_index, state_layout; goal_geometry
+        for the goal-relative encoding, which changes per episode: JITI binds at every reset) from now on.
 
-        Refuses (UserInputError) a task the critic was not trained on or a different observation layout.
+        Refuses (UserInputError) a task the critic cannot encode: one it was not trained on or a different
+        observation layout (task one-hot), or one the goal-relative encoding cannot read.
         """
         self._binding = self._binding_for(metadata)
         return self
@@ -253,6 +271,8 @@ class Critic:
         return q[0] if single else q
 
     def _on_cpu(self, b: _Binding, state: np.ndarray, scaled: np.ndarray) -> np.ndarray:
+        if b.context is not None:
+            state = self.encoder.encode(state, b.context)
         z = clip_normalised_((state - b.state_mean) * b.state_inv_std)  # as `Normalization.observations`
         with self._one_blas_thread:
             first_layer = z @ b.state_weight
@@ -260,7 +280,7 @@ class Critic:
             return self._layers.q(first_layer, scaled)
 
     def _on_device(self, b: _Binding, state: np.ndarray, scaled: np.ndarray) -> np.ndarray:
-        obs = self.normalization.observations(self.encoder.encode(state, b.task))
+        obs = self.normalization.observations(self.encoder.encode(state, b.task if b.context is None else b.context))
         with torch.inference_mode():
             q = self.network(torch.from_numpy(obs).to(self.device), torch.from_numpy(scaled).to(self.device))
             return q.min(0).values.cpu().numpy()
@@ -269,7 +289,7 @@ class Critic:
 def save_critic(
     out_dir: str,
     network: TwinQNetwork,
-    encoder: TaskFeatureEncoder,
+    encoder: FeatureEncoder,
     normalization: Normalization,
     *,
     gamma: float,
@@ -311,7 +331,7 @@ def load(path: str | os.PathLike) -> Critic:
     config_path, weights_path = os.path.join(path, CONFIG_FILE), os.path.join(path, WEIGHTS_FILE)
     try:
         network = TwinQNetwork(**config["network"])
-        encoder = TaskFeatureEncoder.from_dict(config["encoder"])
+        encoder = encoder_from_dict(config["encoder"])
         normalization = Normalization.from_dict(config["normalization"])
     except (KeyError, TypeError, ValueError) as exc:
         raise UserInputError(f"{config_path}: missing or malformed field ({exc.__class__.__name__}: {exc})") from None

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
+from annotations.features import ENCODINGS, Encoding
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.settings import setting
 
@@ -63,6 +64,16 @@ class TrainConfig:
     explored_fraction: float = setting(
         0.0, "share of each batch drawn from explored decisions (rollouts' explored_steps); the recipe: 0.5"
     )
+    tasks: tuple[str, ...] | None = setting(
+        None,
+        "train on the demos of these tasks only, e.g. libero_object/0,libero_object/1 (default: every task in "
+        "the files): a goal-relative critic then scores the others unseen",
+    )
+    encoding: Encoding = setting(
+        "task-onehot",
+        "how a state becomes the critic's input: task-onehot (padded state and task one-hot: the trained "
+        "tasks only) or goal-relative (the state read through the episode's goal: any task it can encode)",
+    )
     bootstrap: int | None = setting(
         None,
         "train on a bootstrap resample of the episodes drawn with this seed: one member of a critic "
@@ -87,6 +98,8 @@ class TrainConfig:
             raise unknown_choice("train-critic reward", self.reward, REWARDS)
         if self.backup not in BACKUPS:
             raise unknown_choice("train-critic backup", self.backup, BACKUPS)
+        if self.encoding not in ENCODINGS:
+            raise unknown_choice("train-critic encoding", self.encoding, ENCODINGS)
         if self.value_loss not in VALUE_LOSSES:
             raise unknown_choice("train-critic value_loss", self.value_loss, VALUE_LOSSES)
         if self.value_loss == "bce" and self.reward != "elegant":

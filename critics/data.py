@@ -2,8 +2,9 @@
 
 Each step t of each demo becomes one transition, in TorchRL's layout (batch = transitions):
 
-    observation        (D,)  float32  the state encoded by `TaskFeatureEncoder` (padded + task one-hot),
-                                      state part normalised with the dataset's mean/std
+    observation        (D,)  float32  the state encoded by the critic's encoding (`annotations.features`:
+                                      padded + task one-hot, or goal-relative), its continuous part
+                                      normalised with the dataset's mean/std
     action             (A,)  float32  the dataset action mapped onto [-1, 1] with the dataset's bounds
     mc_return          (1,)  float32  discounted return-to-go of the training reward, with the critic's
                                       discount (by default the annotation's; Cal-QL's floor;
@@ -55,7 +56,7 @@ from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffe
 from torchrl.data.postprocs import MultiStep
 from torchrl.objectives.value.functional import reward2go
 
-from annotations import CRITERIA, DemoFile, TaskFeatureEncoder
+from annotations import CRITERIA, DemoFile, FeatureEncoder, make_encoder
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from critics.config import REWARDS
 from critics.normalization import Normalization
@@ -70,7 +71,7 @@ class TransitionData:
     """The transitions of a set of annotated files and what the critic must remember about them."""
 
     transitions: TensorDict
-    encoder: TaskFeatureEncoder
+    encoder: FeatureEncoder
     normalization: Normalization
     gamma: float
     n_demos: int
@@ -105,6 +106,7 @@ class _RawDemo:
     path: str
     name: str
     task: str
+    metadata: dict  # what an env's metadata would say of it: suite, task_index, state_layout, goal_geometry
     obs: np.ndarray
     next_obs: np.ndarray
     actions: np.ndarray
@@ -184,6 +186,12 @@ def _read_demos(f: DemoFile, layouts: dict[str, list]) -> list[_RawDemo]:
                 path=f.path,
                 name=demo.name,
                 task=demo.task_key,
+                metadata={
+                    "suite": demo.attrs["suite"],
+                    "task_index": demo.attrs["task_index"],
+                    "state_layout": layouts[demo.task_key],
+                    "goal_geometry": demo.attrs.get("goal_geometry"),
+                },
                 obs=demo.obs,
                 next_obs=demo.next_obs,
                 actions=np.asarray(demo.actions, dtype=np.float32),
@@ -285,7 +293,13 @@ def _elegant_success(demos: list[_RawDemo], gamma: float) -> tuple[torch.Tensor,
 
 
 def load_transitions(
-    paths: Sequence[str], gamma: float | None = None, reward: str = "step", chunk: int = 1, bootstrap: int | None = None
+    paths: Sequence[str],
+    gamma: float | None = None,
+    reward: str = "step",
+    chunk: int = 1,
+    bootstrap: int | None = None,
+    encoding: str = "task-onehot",
+    tasks: Sequence[str] | None = None,
 ) -> TransitionData:
     """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
 
@@ -300,7 +314,10 @@ def load_transitions(
     chunk: the number of actions each transition's action holds (see the module docstring).
     bootstrap: a seed, to train on as many episodes drawn with replacement from all of them (a bootstrap
     resample): critics trained on different resamples err apart where the data says little, which a
-    `CriticEnsemble` needs and different network seeds on the same data do not give."""
+    `CriticEnsemble` needs and different network seeds on the same data do not give.
+    encoding: how states become inputs (`annotations.features.ENCODINGS`); "goal-relative" needs each
+    demo's `goal_geometry` attribute, which annotation records.
+    tasks: keep only these tasks' demos (keys "suite/index"); a task the files do not hold is refused."""
     if gamma is not None and not 0.0 < gamma < 1.0:
         raise UserInputError(f"gamma must lie in (0, 1), got {gamma}")
     if int(chunk) != chunk or chunk < 1:
@@ -330,14 +347,20 @@ def load_transitions(
                     )
                 layouts.setdefault(key, layout)
             demos += _read_demos(f, f.state_layouts)
+    if tasks is not None:
+        missing = sorted(set(tasks) - {d.task for d in demos})
+        if missing:
+            raise UserInputError(f"{', '.join(paths)}: tasks {', '.join(missing)} have no demos (train-critic tasks)")
+        demos = [d for d in demos if d.task in set(tasks)]
+        layouts = {k: v for k, v in layouts.items() if k in set(tasks)}
     if not demos:
         raise UserInputError(f"{', '.join(paths)}: no demos to train on")
     if bootstrap is not None:
         demos = [demos[i] for i in np.random.default_rng(int(bootstrap)).integers(0, len(demos), len(demos))]
-    encoder = TaskFeatureEncoder(layouts)
-
-    obs = np.concatenate([encoder.encode(d.obs, d.task) for d in demos])
-    next_obs = np.concatenate([encoder.encode(d.next_obs, d.task) for d in demos])
+    encoder = make_encoder(encoding, layouts)
+    contexts = [encoder.check_env(d.metadata, f"{d.path}: data/{d.name}") for d in demos]
+    obs = np.concatenate([encoder.encode(d.obs, c) for d, c in zip(demos, contexts)])
+    next_obs = np.concatenate([encoder.encode(d.next_obs, c) for d, c in zip(demos, contexts)])
     actions = np.concatenate([d.actions for d in demos])
     elegance = torch.from_numpy(np.concatenate([d.reward for d in demos]))
     last = np.zeros(len(elegance), dtype=bool)

@@ -227,7 +227,15 @@ def train_critic(
     device = use_compute(compute or ComputeConfig(), "train-critic")
     check_output(out, "dir", resume=resume, overwrite=overwrite, results=(CHECKPOINT_FILE, WEIGHTS_FILE))
     ckpt_path = os.path.join(out, CHECKPOINT_FILE)
-    data = load_transitions(cfg.paths, cfg.gamma, cfg.reward, cfg.chunk, cfg.bootstrap)
+    data = load_transitions(
+        cfg.paths,
+        cfg.gamma,
+        cfg.reward,
+        cfg.chunk,
+        cfg.bootstrap,
+        cfg.encoding,
+        None if cfg.tasks is None else list(cfg.tasks),
+    )
     with output_lock(out):  # one writer per critic directory
         os.makedirs(out, exist_ok=True)  # only now: refused settings or data leave nothing behind
         if overwrite:  # the earlier run's critic and checkpoint go before this run writes its own

@@ -189,6 +189,9 @@ def test_annotate_file_replays_states_into_labels(recorded, tmp_path):
         assert hover.attrs["violated"] == ["alignment"] and hover.elegance_reward.sum() == 0
         assert hover.attrs["knobs"] == {} and hover.attrs["expert_version"] == "test-scripted"
         assert annotated.state_layouts == DemoFile(path).state_layouts
+        # the recording predates goal geometry: the replay found it at each demo's start
+        assert hover.attrs["goal_geometry"]["goal"] == [["on", "cream_cheese_1", "akita_black_bowl_1"]]
+        assert hover.attrs["goal_geometry"]["regions"] == {} and hover.attrs["goal_geometry"]["table_height"] == 0.9
     with DemoFile(out) as annotated:
         lengths = {d.name: d.num_samples for d in annotated}
         segments = {d.name: d.itc_segments for d in annotated}

@@ -24,6 +24,27 @@ def task_layout(task_index: int) -> list[list]:
     return ROBOT + [[f"obj{k}/{part}", size] for k in range(task_index + 1) for part, size in (("pos", 3), ("quat", 4))]
 
 
+def goal_geometry(task_index: int) -> dict:
+    """A recorded goal for the tasks of `task_layout`: task 0 puts obj0 on a table region; task i > 0 puts
+    obj1 into a region riding on obj0 (a basket's inside)."""
+    if task_index == 0:
+        goal, region = [["on", "obj0", "table_region"]], {"frame": "world", "parent": None, "position": [0.1, 0.2, 0.9]}
+    else:
+        goal, region = (
+            [["in", "obj1", "obj0_contain_region"]],
+            {"frame": "object", "parent": "obj0", "position": [0, 0, 0.05]},
+        )
+    region.update(rotation=[1, 0, 0, 0, 1, 0, 0, 0, 1], half_size=[0.05, 0.05, 0.02])
+    return {
+        "version": 1,
+        "goal": goal,
+        "robot_base": [-0.6, 0.0, 0.9],
+        "table_height": 0.9,
+        "regions": {goal[0][2]: region},
+        "articulations": {},
+    }
+
+
 def discounted_returns(rewards: np.ndarray, gamma: float) -> np.ndarray:
     out, acc = np.zeros(len(rewards)), 0.0
     for t in reversed(range(len(rewards))):
@@ -81,6 +102,7 @@ def write_annotated(
                 "task_index": task,
                 "task_name": f"task {task}",
                 "success": success,
+                "goal_geometry": goal_geometry(task),
                 **({"explored_steps": explored_at[i]} if i in (explored_at or {}) else {}),
             },
         )

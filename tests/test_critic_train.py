@@ -11,11 +11,12 @@ import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
-from test_critic_data import task_layout, write_annotated
+from test_critic_data import goal_geometry, task_layout, write_annotated
 
 from base_suites.runtime.errors import UserInputError
 from critics import auroc, evaluate_critic, load, train_critic
@@ -113,6 +114,43 @@ def test_bind_refuses_an_unknown_task_or_another_layout(trained):
         critic.bind(metadata(7))
     with pytest.raises(RuntimeError, match="bind"):
         critic.q(np.zeros(23), np.zeros((2, 7)))
+
+
+def test_a_goal_relative_critic_scores_a_task_it_never_saw_exactly_as_its_network_does(annotated, trained, tmp_path):
+    """Trained on libero_object tasks 0 and 1, it binds to libero_goal/5 (another layout, another name) whose
+    goal it can read: `q`'s folded NumPy path equals the network on the encoded, normalised state."""
+    from annotations import GoalFeatureEncoder
+
+    out = str(tmp_path / "goal")
+    config = replace(UNIT, encoding="goal-relative")
+    summary = train_critic([annotated], out, steps=4, config=config, progress=False)
+    assert np.isfinite(list(summary["final"].values())).all()
+    critic = load(out)
+    assert isinstance(critic.encoder, GoalFeatureEncoder) and critic.config["encoder"]["kind"] == "goal-relative"
+    layout = task_layout(2)
+    unseen = {"suite": "libero_goal", "task_index": 5, "state_layout": layout, "goal_geometry": goal_geometry(1)}
+    critic.bind(unseen)
+    rng = np.random.default_rng(1)
+    state, actions = rng.normal(size=sum(s for _, s in layout)), rng.uniform(-0.5, 0.5, size=(4, 7))
+    encoded = critic.encoder.encode(state, critic.encoder.check_env(unseen))
+    by_network = critic.network(
+        torch.from_numpy(critic.normalization.observations(encoded))[None],
+        torch.from_numpy(critic.normalization.actions(actions))[None],
+    ).amin(0)[0]
+    np.testing.assert_allclose(critic.q(state, actions), by_network.numpy(), atol=1e-5)
+    with pytest.raises(UserInputError, match="'libero_goal/5' is not among the tasks"):
+        load(trained[0]).bind(unseen)  # the task one-hot knows only its tasks
+    with pytest.raises(UserInputError, match="has no goal_geometry"):
+        critic.bind({**unseen, "goal_geometry": None})
+
+
+def test_tasks_keep_their_demos_only_and_an_absent_task_is_refused_before_anything_is_written(annotated, tmp_path):
+    out = str(tmp_path / "one_task")
+    summary = train_critic([annotated], out, steps=1, config=UNIT, tasks=("libero_object/1",), progress=False)
+    assert summary["tasks"] == ["libero_object/1"] and summary["demos"] == 3
+    with pytest.raises(UserInputError, match="tasks libero_object/7 have no demos"):
+        train_critic([annotated], str(tmp_path / "none"), steps=1, config=UNIT, tasks=("libero_object/7",))
+    assert not os.path.exists(tmp_path / "none")
 
 
 def test_resume_after_a_kill_equals_an_uninterrupted_run(annotated, tmp_path):

@@ -46,15 +46,21 @@ def test_expert_rollout_is_identical_across_processes():
 def test_fixture_layout_follows_the_reset_seed_and_can_be_restored():
     env = make_env("libero_goal", 0, seed=0, settle_steps=0)
     env.reset(seed=1)
-    first = env.fixture_layout()
+    first, first_goal = env.fixture_layout(), env.metadata["goal_geometry"]
     env.reset(seed=2)
     assert env.fixture_layout() != first, "LIBERO jitters fixtures per reset; the seed should pick the jitter"
+    drawer = "wooden_cabinet_1_middle_region"  # the goal region moves with its fixture, and the metadata with it
+    second_goal = env.metadata["goal_geometry"]["regions"][drawer]["position"]
+    assert not np.allclose(second_goal, first_goal["regions"][drawer]["position"], atol=1e-4)
     env.reset(seed=1)
     assert env.fixture_layout() == first
     env.reset(seed=2)
     region = "wooden_cabinet_1_top_region"
     moved = env.sim.region(region).position - np.array(env.fixture_layout()["wooden_cabinet_1"][:3])
     env.set_fixture_layout(first)
+    np.testing.assert_allclose(
+        env.goal_geometry()["regions"][drawer]["position"], first_goal["regions"][drawer]["position"], atol=1e-4
+    )
     cabinet = first["wooden_cabinet_1"]
     # What the ITC monitor and the expert read follows the restored layout: bodies and region sites.
     np.testing.assert_allclose(env.sim.position("wooden_cabinet_1"), cabinet[:3])

@@ -57,14 +57,19 @@ def test_imported_demo_reproduces_live_observations(tmp_path):
 def test_import_places_fixtures_from_the_recorded_model_xml(tmp_path):
     env = make_env("libero_goal", 0, seed=0, settle_steps=0)
     env.reset(seed=5)
-    recorded = env.fixture_layout()
+    recorded, recorded_goal = env.fixture_layout(), env.goal_geometry()
     states = np.array([env.get_sim_state()] * 3)
     source = tmp_path / "goal.hdf5"
     _write_libero_file(source, env, states, np.zeros((3, 7)), env.domain.sim.model.get_xml())
     import_libero_hdf5(str(source), str(tmp_path / "ours.hdf5"), progress=False)
     with DemoFile(tmp_path / "ours.hdf5") as f:
-        imported = next(iter(f)).attrs["fixture_layout"]
+        imported, imported_goal = (next(iter(f)).attrs[k] for k in ("fixture_layout", "goal_geometry"))
     assert imported.keys() == recorded.keys()
+    region = "wooden_cabinet_1_middle_region"  # the goal region stands where the recording's fixture put it
+    assert imported_goal["goal"] == recorded_goal["goal"] == [["open", region]]
+    np.testing.assert_allclose(
+        imported_goal["regions"][region]["position"], recorded_goal["regions"][region]["position"], atol=1e-5
+    )
     for name in recorded:
         np.testing.assert_allclose(imported[name], recorded[name], atol=1e-5)
 

@@ -8,6 +8,7 @@ from conftest import interrupted_at_second_episode
 
 from annotations import CRITERIA, DemoFile, annotate_file
 from base_suites import UserInputError, make_env
+from base_suites.suites import get_task
 from elegant.evaluation.rollouts import branch_points_reached, branch_step, collect_rollouts
 from elegant.evaluation.runner import episode_start
 from itc import ITCMonitor
@@ -53,6 +54,7 @@ def test_rollouts_start_like_eval_record_exploration_and_resume(tmp_path, monkey
     for i, demo in enumerate(demos):
         init, reset_seed = episode_start(4, SUITE, TASK, i, 50, INITS)
         assert (demo.attrs["init_state_index"], demo.attrs["reset_seed"]) == (init, reset_seed) and init in INITS
+        assert demo.attrs["goal_geometry"]["goal"] == [list(p) for p in get_task(SUITE, TASK).goal]
         explored = demo.attrs["explored_steps"]
         assert demo.attrs["rollout"]["mode"] == "random" and demo.attrs["rollout"]["random_rate"] == 0.5
         moved = [t for t in range(demo.num_samples) if demo.actions[t][0] != 0.0]

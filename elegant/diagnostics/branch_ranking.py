@@ -45,6 +45,7 @@ def _metadata(f: DemoFile, demo: Demo) -> dict[str, Any]:
         "task_index": int(attrs["task_index"]),
         "instruction": attrs.get("language_instruction", ""),
         "state_layout": f.state_layouts[demo.task_key],
+        "goal_geometry": attrs.get("goal_geometry"),
     }
 
 
@@ -80,8 +81,6 @@ def branch_ranking(path: str, policy: Any, critic: Any, *, progress: bool = Fals
     check_critic_chunk(critic, chunk)
     rows: dict[str, list[tuple[bool, float, float]]] = defaultdict(list)
     skipped: dict[str, int] = defaultdict(int)
-    metadata: dict[str, dict[str, Any]] = {}  # per task; the critic is bound anew only when the task changes
-    bound = None
     with DemoFile(path, require_labels=True) as f:
         for name in tqdm(f.names, desc="rank", unit="ep", disable=not progress):
             demo = f.demo(name)
@@ -91,12 +90,9 @@ def branch_ranking(path: str, policy: Any, critic: Any, *, progress: bool = Fals
             if explored_at is None:
                 skipped[key] += 1
                 continue
-            if key not in metadata:
-                metadata[key] = _metadata(f, demo)
-            policy.reset(metadata[key], seed=0)
-            if key != bound:
-                critic.bind(metadata[key])
-                bound = key
+            metadata = _metadata(f, demo)  # per episode: a goal-relative critic reads the episode's goal geometry
+            policy.reset(metadata, seed=0)
+            critic.bind(metadata)
             for t in range(explored_at):
                 action = np.asarray(policy({"state": demo.obs[t]}), dtype=np.float64)
                 if not np.allclose(np.clip(action, -1.0, 1.0), demo.actions[t], atol=_SAME_ACTION_ATOL):

@@ -65,11 +65,13 @@ def _model_tasks(spec: Any) -> list[str] | None:
     """The tasks a policy or critic directory was trained on (None: a model that reads any task)."""
     if not isinstance(spec, (str, os.PathLike)) or not os.path.isdir(spec):
         return None
+    from critics.artifact import CONFIG_FILE as CRITIC_CONFIG
     from elegant.policies.bc_artifact import CONFIG_FILE
 
-    config = read_json_file(os.path.join(spec, CONFIG_FILE), "model config")
+    names = [n for n in (CONFIG_FILE, CRITIC_CONFIG) if os.path.isfile(os.path.join(spec, n))]
+    config = read_json_file(os.path.join(spec, names[0] if names else CONFIG_FILE), "model config")
     encoder = config.get("features", {}).get("encoder") or config.get("encoder")
-    return None if encoder is None else sorted(encoder["layouts"])
+    return None if encoder is None or "layouts" not in encoder else sorted(encoder["layouts"])
 
 
 def _refuse_unreadable_axes(policy: Any, critic: Any, plan: dict[str, dict[str, list[str]]]) -> None:
