@@ -60,7 +60,9 @@ class ChainConfig:
         derived=("episodes", "seed", "trust_radius", "init_states", "max_steps", "policy_act"),
     )
     critic: TrainConfig = nested(
-        lambda: TrainConfig(explored_fraction=0.5), "critic-", derived=("paths", "seed", "chunk", "bootstrap")
+        lambda: TrainConfig(explored_fraction=0.5),
+        "critic-",
+        derived=("paths", "seed", "chunk", "bootstrap", "tasks"),
     )
     critic_members: int = setting(
         3, "critics trained on bootstrap resamples of the data; JITI overrides only when all prefer it"

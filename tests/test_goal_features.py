@@ -189,3 +189,30 @@ def test_robustness_preflight_refuses_a_task_onehot_critic_on_variants_and_passe
                 _refuse_unreadable_axes(None, out, plan)
         else:
             _refuse_unreadable_axes(None, out, plan)
+
+
+def test_a_goal_relative_bc_policy_acts_in_a_task_it_never_saw_and_its_film_reads_the_goal(tmp_path):
+    from test_critic_data import task_layout, write_annotated
+
+    from elegant.policies import load_policy
+    from elegant.policies.bc_train import train_policy
+
+    data = write_annotated(tmp_path / "demos.hdf5")
+    tiny = {"epochs": 1, "hidden": (16,), "modes": 2, "history": 2, "chunk": 2, "progress": False}
+    out = str(tmp_path / "goal_policy")
+    train_policy([data], out, encoding="goal-relative", successful_only=False, **tiny)
+    policy = load_policy(out)
+    assert policy.config["model"]["task_dim"] == ENCODER.dim - ENCODER.state_dim  # the goal's structure
+    layout = task_layout(2)
+    unseen = {"suite": "libero_goal", "task_index": 5, "state_layout": layout, "goal_geometry": goal_geometry(1)}
+    policy.reset(unseen, seed=0)
+    state = np.random.default_rng(0).normal(size=sum(s for _, s in layout))
+    action = policy({"state": state})
+    assert action.shape == (7,) and np.isfinite(action).all()
+    policy.reset(seed=0)
+    with pytest.raises(UserInputError, match="needs reset\\(env.metadata\\)"):
+        policy({"state": state})
+    onehot = str(tmp_path / "onehot_policy")
+    train_policy([data], onehot, successful_only=False, **tiny)
+    with pytest.raises(UserInputError, match="'libero_goal/5' is not among the tasks"):
+        load_policy(onehot).reset(unseen)

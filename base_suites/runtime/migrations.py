@@ -42,15 +42,15 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
         "algorithm_settings": {},
         "pretrained": None,
     },
-    # train-policy's checkpoint fingerprint: before the success filter, observation noise and the lifelong
-    # baselines' mechanisms and pre-training
+    # train-policy's checkpoint fingerprint: before the success filter, observation noise, the lifelong
+    # baselines' mechanisms and pre-training, and the goal-relative encoding
     "policy checkpoint": {
         "successful_only": False,
-        "config": {"obs_noise": 0.0},
+        "config": {"obs_noise": 0.0, "encoding": "task-onehot"},
         "continual": None,
         "pretrained": None,
     },
-    # train-critic's checkpoint config
+    # train-critic's checkpoint config (encoding and tasks: before the goal-relative encoding)
     "critic checkpoint": {
         "chunk": 1,
         "backup": "policy",
@@ -59,11 +59,17 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
         "value_loss": "mse",
         "explored_fraction": 0.0,
         "bootstrap": None,
+        "encoding": "task-onehot",
+        "tasks": None,
     },
     # the agent a gate file (or a run it reads) records: before the policy act
     "gate agent": {"policy_act": "mode"},
-    # chain.json's settings in format 2: before the rollouts' observation mode
-    "chain": {"rollout": {"obs": "lowdim"}},
+    # chain.json's settings in format 2: before the rollouts' observation mode and the encodings
+    "chain": {
+        "rollout": {"obs": "lowdim"},
+        "policy": {"encoding": "task-onehot"},
+        "critic": {"encoding": "task-onehot", "tasks": None},
+    },
     # chain.json in its flat format 1 (`elegant.chain_config.migrate_flat_record` maps it to format 2); None
     # there stands for the stage's default of the day
     "flat chain": {

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from base_suites.runtime.errors import UserInputError
+from annotations.features import ENCODINGS, Encoding
+from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.settings import setting
 
 # Mixture components. LIBERO's GMM baselines use 5; 16 did far better on libero_object/0 (docs/lab/policy.md):
@@ -36,6 +37,11 @@ class BCConfig:
         "the task one-hot also modulates every hidden layer (off: it enters at the input only, as policies "
         "before FiLM task conditioning)",
     )
+    encoding: Encoding = setting(
+        "task-onehot",
+        "how a state becomes the policy's input: task-onehot (the trained tasks only) or goal-relative (any "
+        "task whose goal it can encode; FiLM then reads the goal's predicates instead of a task one-hot)",
+    )
     obs_noise: float = setting(
         0.1,
         "std (normalised units) of Gaussian noise added to input states in training, so the policy learns "
@@ -58,6 +64,8 @@ class BCConfig:
         for name in ("lr", "weight_decay", "grad_clip", "obs_noise"):
             if not getattr(self, name) >= 0:
                 raise UserInputError(f"train_policy: {name} must be >= 0, got {getattr(self, name)!r}")
+        if self.encoding not in ENCODINGS:
+            raise unknown_choice("train_policy encoding", self.encoding, ENCODINGS)
         for name in ("min_std", "obs_min_std"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"train_policy: {name} must be > 0, got {getattr(self, name)!r}")

@@ -23,6 +23,8 @@ class Episode:
     task: str
     states: np.ndarray  # (T, D_task) float64
     actions: np.ndarray  # (T, 7) float32
+    metadata: dict = field(default_factory=dict)  # as env.metadata: suite, task_index, state_layout, goal_geometry
+    source: str = ""  # "FILE: data/demo_i", for messages
 
 
 @dataclass
@@ -73,7 +75,15 @@ def load_demos(paths: Sequence[str | os.PathLike], successful_only: bool = False
                     )
                 if len(demo.obs) == 0 or (successful_only and not bool(demo.attrs.get("success", True))):
                     continue
-                data.episodes.append(Episode(key, demo.obs.astype(np.float64), demo.actions.astype(np.float32)))
+                metadata = {
+                    "suite": demo.attrs["suite"],
+                    "task_index": demo.attrs["task_index"],
+                    "state_layout": data.layouts[key],
+                    "goal_geometry": demo.attrs.get("goal_geometry"),
+                }
+                data.episodes.append(
+                    Episode(key, demo.obs.astype(np.float64), demo.actions.astype(np.float32), metadata, where)
+                )
                 samples += len(demo.obs)
             data.files.append({"path": os.path.abspath(f.path), "demos": len(f), "samples": samples})
     if not data.episodes:

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from annotations import GoalContext
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
@@ -81,7 +82,7 @@ class BCPolicy(ExecutesPlans):
         self._window: deque[np.ndarray] = deque(maxlen=features.history)
         self._queue: deque[np.ndarray] = deque()
         self._last_state: np.ndarray | None = None
-        self.task: str | None = None
+        self.task: str | GoalContext | None = None  # what `features.encode` reads: a task key or a goal plan
         self.reset(seed=seed)
 
     @property
@@ -92,9 +93,9 @@ class BCPolicy(ExecutesPlans):
         self._window.clear()
         self._queue.clear()
         self._last_state = None
-        if metadata is not None:
-            self.task = self.features.encoder.check_env(metadata, self.path)
-        elif len(self.tasks) == 1:
+        if metadata is not None:  # a task key, or the episode's goal-relative plan
+            self.task = self.features.context(metadata, self.path)
+        elif len(self.tasks) == 1 and self.features.encoder.kind == "task-onehot":
             self.task = self.tasks[0]
         else:
             self.task = None
@@ -127,12 +128,13 @@ class BCPolicy(ExecutesPlans):
     def _push(self, state: np.ndarray) -> None:
         if self.task is None:
             raise UserInputError(
-                f"{self.path}: multi-task policy ({len(self.tasks)} tasks) needs reset(env.metadata) before acting"
+                f"{self.path}: a multi-task or goal-relative policy needs reset(env.metadata) before acting"
             )
-        width = self.features.stats[self.task][0].shape[0]
+        width = self.features.width(self.task)
         if state.shape != (width,):
             raise UserInputError(
-                f"{self.path}: observation 'state' has shape {state.shape}; task {self.task} expects ({width},)"
+                f"{self.path}: observation 'state' has shape {state.shape}; task "
+                f"{getattr(self.task, 'task', self.task)} expects ({width},)"
             )
         encoded = self.features.encode(state, self.task)
         if not self._window:

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from annotations import TaskFeatureEncoder
 from base_suites.runtime.compute import ComputeConfig, device_kind, refuse_other_device, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields
@@ -62,15 +63,15 @@ class _Windows:
         encoded, starts, ends = [], [], []
         offset = 0
         for episode in data.episodes:
-            encoded.append(features.encode(episode.states, episode.task))
+            encoded.append(features.encode(episode.states, features.context_of(episode)))
             starts.append(np.full(len(episode.states), offset))
             ends.append(np.full(len(episode.states), offset + len(episode.states) - 1))
             offset += len(episode.states)
         self.encoded = torch.from_numpy(np.concatenate(encoded))
         # state slots each row's task fills (the rest is padding): where observation noise may go
-        self.widths = torch.tensor(
-            [sum(size for _, size in data.layouts[e.task]) for e in data.episodes]
-        ).repeat_interleave(torch.tensor([len(e.states) for e in data.episodes]))
+        self.widths = torch.tensor([features.noise_width(e) for e in data.episodes]).repeat_interleave(
+            torch.tensor([len(e.states) for e in data.episodes])
+        )
         self.starts = torch.from_numpy(np.concatenate(starts))
         self.ends = torch.from_numpy(np.concatenate(ends))
         self.actions = torch.from_numpy(np.concatenate([e.actions for e in data.episodes]))
@@ -158,17 +159,22 @@ def _input_features(
             )
         features = init[1]
     elif features is None:
-        return BCFeatures.fit(data, history=cfg.history, min_std=cfg.obs_min_std)
+        return BCFeatures.fit(data, history=cfg.history, min_std=cfg.obs_min_std, encoding=cfg.encoding)
     where = init_from or "train_policy: features"
     if features.history != cfg.history:
         raise UserInputError(
             f"{where}: input history is {features.history} states but this run has history={cfg.history}"
         )
-    for key, layout in data.layouts.items():
-        if features.encoder.layouts.get(key) != layout:
-            raise UserInputError(
-                f"{where}: the input encoder does not know task {key} with the layout of the demo files"
-            )
+    if features.encoder.kind != cfg.encoding:
+        raise UserInputError(f"{where}: its input encoding is {features.encoder.kind} but this run has {cfg.encoding}")
+    if isinstance(features.encoder, TaskFeatureEncoder):
+        for key, layout in data.layouts.items():
+            if features.encoder.layouts.get(key) != layout:
+                raise UserInputError(
+                    f"{where}: the input encoder does not know task {key} with the layout of the demo files"
+                )
+    for episode in data.episodes:  # a goal the goal-relative encoding cannot read is refused here
+        features.context_of(episode)
     return features
 
 
@@ -298,7 +304,7 @@ def train_policy(
         "modes": cfg.modes,
         "min_std": cfg.min_std,
         "chunk": cfg.chunk,
-        "task_dim": len(features.encoder.tasks) if cfg.task_film else 0,
+        "task_dim": features.binary_dim if cfg.task_film else 0,
     }
 
     with torch.random.fork_rng(devices=[]):

@@ -22,7 +22,7 @@ from __future__ import annotations
 import hashlib
 import io
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
@@ -76,7 +76,7 @@ def replay_memory(data: DemoSet, tasks: Sequence[str], samples: int) -> DemoSet:
             if left == 0:
                 break
             take = min(left, len(episode.actions))
-            episodes.append(Episode(task, episode.states[:take], episode.actions[:take]))
+            episodes.append(replace(episode, states=episode.states[:take], actions=episode.actions[:take]))
             left -= take
     if not episodes:
         raise UserInputError("lifelong: the replay memory is empty (no earlier task has demos)")
