@@ -10,7 +10,7 @@ segments that violated it.
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from typing import Any
 
 import numpy as np
@@ -35,34 +35,38 @@ def auroc(positive: np.ndarray, negative: np.ndarray) -> float | None:
     return float(u / (len(positive) * len(negative)))
 
 
-def _score_file(critic: Critic, path: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Q of every dataset action in the file, and per criterion whether its step's segment kept it."""
-    q, kept = [], {c: [] for c in CRITERIA}
+def _score_file(
+    critic: Critic, path: str, tasks: Collection[str] | None = None
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Q of every dataset action in the file (of `tasks`' demos only, if given), and per criterion whether
+    its step's segment kept it. Each demo binds anew: a goal-relative critic reads its goal geometry."""
+    q, kept = [np.zeros(0, dtype=np.float32)], {c: [np.zeros(0, dtype=bool)] for c in CRITERIA}
     with DemoFile(path, require_labels=True) as f:
         length = segment_length(f)
         layouts = f.state_layouts
-        bindings = {}
         for demo in f:
             key = demo.task_key
-            if key not in bindings:
-                if key not in layouts:
-                    raise UserInputError(f"{path}: data.state_layouts has no layout for task {key}")
-                meta = {
-                    "suite": demo.attrs["suite"],
-                    "task_index": demo.attrs["task_index"],
-                    "state_layout": layouts[key],
-                }
-                bindings[key] = critic._binding_for(meta)
-            q.append(
-                critic._score(bindings[key], demo.obs, action_chunks(demo.actions, critic.chunk)[:, None, :])[:, 0]
-            )
+            if tasks is not None and key not in tasks:
+                continue
+            if key not in layouts:
+                raise UserInputError(f"{path}: data.state_layouts has no layout for task {key}")
+            meta = {
+                "suite": demo.attrs["suite"],
+                "task_index": demo.attrs["task_index"],
+                "state_layout": layouts[key],
+                "goal_geometry": demo.attrs.get("goal_geometry"),
+            }
+            binding = critic._binding_for(meta)
+            q.append(critic._score(binding, demo.obs, action_chunks(demo.actions, critic.chunk)[:, None, :])[:, 0])
             for c, labels in step_window_labels(demo, length, f"{path}: data/{demo.name}").items():
                 kept[c].append(labels)
     return np.concatenate(q), {c: np.concatenate(v) for c, v in kept.items()}
 
 
-def evaluate_critic(critic_or_dir: Critic | str | os.PathLike, annotated_paths: Sequence[str]) -> dict[str, Any]:
-    """Held-out AUROC of a critic on annotated files.
+def evaluate_critic(
+    critic_or_dir: Critic | str | os.PathLike, annotated_paths: Sequence[str], tasks: Collection[str] | None = None
+) -> dict[str, Any]:
+    """Held-out AUROC of a critic on annotated files (on `tasks`' demos only, if given: keys "suite/index").
 
     Returns: auroc (elegant vs violated steps; None if either is absent), n_elegant, n_violated,
     mean_q_elegant, mean_q_violated, per_criterion ({criterion: {auroc, n_kept, n_violated}}), transitions,
@@ -71,7 +75,7 @@ def evaluate_critic(critic_or_dir: Critic | str | os.PathLike, annotated_paths: 
     critic = critic_or_dir if isinstance(critic_or_dir, Critic) else load(critic_or_dir)
     if not annotated_paths:
         raise UserInputError("evaluate_critic: no annotated HDF5 files given")
-    scored = [_score_file(critic, str(p)) for p in annotated_paths]
+    scored = [_score_file(critic, str(p), tasks) for p in annotated_paths]
     q = np.concatenate([s[0] for s in scored])
     kept = {c: np.concatenate([s[1][c] for s in scored]) for c in CRITERIA}
     elegant = np.logical_and.reduce([kept[c] for c in CRITERIA])

@@ -20,7 +20,7 @@ from base_suites.runtime.locks import output_lock
 from elegant.chain_config import ChainConfig, check_chain_settings, load_recipe
 
 
-def _init_split(cfg: ChainConfig) -> tuple[list[int] | None, list[int] | None]:
+def init_split(cfg: ChainConfig) -> tuple[list[int] | None, list[int] | None]:
     """(rollout starts, evaluation starts): the first and second half of the init states every chosen task
     has, when the critic learns from rollouts; (None, None), all starts for the evaluation, otherwise."""
     if not cfg.critic_rollouts:
@@ -94,7 +94,7 @@ def _run_chain(
     policy_dir = os.path.join(out, "policy")
     members = range(cfg.critic_members)
     critic_dirs = [os.path.join(out, "critic" if len(members) == 1 else f"critic_{k + 1}") for k in members]
-    rollout_starts, eval_starts = _init_split(cfg)
+    rollout_starts, eval_starts = init_split(cfg)
     runs = {m: {s: os.path.join(out, f"eval_{m}_{s}") for s in cfg.suites} for m in cfg.modes}
 
     def say(step: str) -> None:
