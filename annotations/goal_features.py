@@ -29,7 +29,7 @@ goal naming an object the state does not hold) is refused with one line.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -93,7 +93,10 @@ class _GoalSlot:
 
 @dataclass(frozen=True)
 class GoalContext:
-    """One episode's encoding plan: state indices and the goal's fixed geometry (from `check_env`)."""
+    """One episode's encoding plan: state indices and the goal's fixed geometry (from `check_env`).
+
+    It remembers the last single state it encoded: the members of a critic ensemble bound with one
+    context encode each decision's state once (`CriticEnsemble.bind`)."""
 
     task: str
     state_size: int
@@ -101,6 +104,7 @@ class GoalContext:
     table_height: float
     goals: tuple[_GoalSlot, ...]
     others: np.ndarray  # indices of the other objects' positions, ordered by name
+    last: list = field(default_factory=list, compare=False, repr=False)  # [state bytes, features] or empty
 
 
 def _slots(layout: list[list[Any]]) -> dict[str, int]:
@@ -200,12 +204,20 @@ class GoalFeatureEncoder:
         )
 
     def encode(self, states: np.ndarray, context: GoalContext) -> np.ndarray:
-        """(..., D) states of the episode `context` plans for -> (..., dim) float32 features."""
+        """(..., D) states of the episode `context` plans for -> (..., dim) float32 features (a new array)."""
         s = np.asarray(states, dtype=np.float64)
         if s.shape[-1] != context.state_size:
             raise UserInputError(
                 f"task {context.task}: state has {s.shape[-1]} entries; its layout has {context.state_size}"
             )
+        if s.size != context.state_size:  # a batch; one state (of any leading shape of ones) is remembered
+            return self._encode(s, context)
+        key = (s.shape, s.tobytes())
+        if not context.last or context.last[0] != key:
+            context.last[:] = [key, self._encode(s, context)]
+        return context.last[1].copy()
+
+    def _encode(self, s: np.ndarray, context: GoalContext) -> np.ndarray:
         lead = s.shape[:-1]
         eef = s[..., 0:3]
         continuous = [eef - context.base, s[..., 3:16], eef[..., 2:3] - context.table_height]

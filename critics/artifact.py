@@ -184,8 +184,13 @@ class Critic:
     def tasks(self) -> list[str]:
         return list(self.encoder.tasks)
 
-    def _binding_for(self, metadata: Mapping[str, Any]) -> _Binding:
-        context = self.encoder.check_env(metadata, self.path)
+    @property
+    def context(self) -> GoalContext | None:
+        """The bound episode's goal-relative plan (None: unbound, or a task one-hot)."""
+        return None if self._binding is None else self._binding.context
+
+    def _binding_for(self, metadata: Mapping[str, Any], context: GoalContext | None = None) -> _Binding:
+        context = self.encoder.check_env(metadata, self.path) if context is None else context
         if isinstance(context, GoalContext):
             binary = self.encoder.dim - self.encoder.state_dim
             return _Binding(
@@ -215,14 +220,15 @@ class Critic:
             bias.reshape(-1).numpy().astype(np.float32),
         )
 
-    def bind(self, metadata: Mapping[str, Any]) -> Critic:
+    def bind(self, metadata: Mapping[str, Any], context: GoalContext | None = None) -> Critic:
         """Score states of the env described by `metadata` (suite, task_index, state_layout; goal_geometry
         for the goal-relative encoding, which changes per episode: JITI binds at every reset) from now on.
 
         Refuses (UserInputError) a task the critic cannot encode: one it was not trained on or a different
-        observation layout (task one-hot), or one the goal-relative encoding cannot read.
+        observation layout (task one-hot), or one the goal-relative encoding cannot read. `context`: a
+        goal-relative plan another critic made of the same `metadata` (an ensemble's members share it).
         """
-        self._binding = self._binding_for(metadata)
+        self._binding = self._binding_for(metadata, context)
         return self
 
     def q(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:

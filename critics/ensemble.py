@@ -36,9 +36,16 @@ class CriticEnsemble:
         self.path = ",".join(str(getattr(m, "path", "critic")) for m in self.members)
 
     def bind(self, metadata: Mapping[str, Any]) -> CriticEnsemble:
-        """Bind every member to the env's task (each refuses a task it was not trained on)."""
+        """Bind every member to the env's task (each refuses a task it cannot encode). Goal-relative members
+        share one episode plan, so a decision's state is encoded once for all of them."""
+        shared = None
         for member in self.members:
+            if shared is not None and getattr(member.encoder, "kind", None) == "goal-relative":
+                member.bind(metadata, context=shared)
+                continue
             member.bind(metadata)
+            if getattr(member.encoder, "kind", None) == "goal-relative":
+                shared = member.context
         return self
 
     def to(self, device: Any) -> CriticEnsemble:

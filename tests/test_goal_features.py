@@ -216,3 +216,31 @@ def test_a_goal_relative_bc_policy_acts_in_a_task_it_never_saw_and_its_film_read
     train_policy([data], onehot, successful_only=False, **tiny)
     with pytest.raises(UserInputError, match="'libero_goal/5' is not among the tasks"):
         load_policy(onehot).reset(unseen)
+
+
+def test_an_ensemble_of_goal_relative_critics_encodes_each_state_once_and_scores_as_its_members(
+    tmp_path, monkeypatch
+):
+    from test_critic_data import task_layout, write_annotated
+    from test_critic_train import UNIT
+
+    from critics import load, load_ensemble, train_critic
+
+    data = write_annotated(tmp_path / "train.hdf5")
+    dirs = [str(tmp_path / f"member_{k}") for k in (0, 1)]
+    for k, out in enumerate(dirs):
+        train_critic([data], out, steps=2, config=UNIT, encoding="goal-relative", bootstrap=k, progress=False)
+    layout = task_layout(2)
+    unseen = {"suite": "libero_goal", "task_index": 5, "state_layout": layout, "goal_geometry": goal_geometry(1)}
+    rng = np.random.default_rng(2)
+    state, actions = rng.normal(size=sum(s for _, s in layout)), rng.uniform(-0.5, 0.5, size=(3, 7))
+    alone = np.stack([load(d).bind(unseen).q(state, actions) for d in dirs])
+    ensemble = load_ensemble(dirs).bind(unseen)
+    assert ensemble.members[0].context is ensemble.members[1].context
+    calls = []
+    original = GoalFeatureEncoder._encode
+    monkeypatch.setattr(GoalFeatureEncoder, "_encode", lambda self, s, c: calls.append(1) or original(self, s, c))
+    np.testing.assert_array_equal(ensemble.member_q(state, actions), alone)
+    assert len(calls) == 1
+    ensemble.member_q(state + 0.1, actions)
+    assert len(calls) == 2
