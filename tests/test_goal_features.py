@@ -218,9 +218,7 @@ def test_a_goal_relative_bc_policy_acts_in_a_task_it_never_saw_and_its_film_read
         load_policy(onehot).reset(unseen)
 
 
-def test_an_ensemble_of_goal_relative_critics_encodes_each_state_once_and_scores_as_its_members(
-    tmp_path, monkeypatch
-):
+def test_an_ensemble_of_goal_relative_critics_encodes_each_state_once_and_scores_as_its_members(tmp_path, monkeypatch):
     from test_critic_data import task_layout, write_annotated
     from test_critic_train import UNIT
 
