@@ -40,11 +40,12 @@ class CriticEnsemble:
         share one episode plan, so a decision's state is encoded once for all of them."""
         shared = None
         for member in self.members:
-            if shared is not None and getattr(member.encoder, "kind", None) == "goal-relative":
+            goal_relative = getattr(getattr(member, "encoder", None), "kind", None) == "goal-relative"
+            if goal_relative and shared is not None:
                 member.bind(metadata, context=shared)
                 continue
-            member.bind(metadata)
-            if getattr(member.encoder, "kind", None) == "goal-relative":
+            member.bind(metadata)  # any critic-like member: bind, q, chunk
+            if goal_relative:
                 shared = member.context
         return self
 
