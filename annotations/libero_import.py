@@ -136,9 +136,9 @@ def replay_states(env, states: np.ndarray, actions: np.ndarray, layout: dict | N
     env.reset(seed=0, options={"init_state": 0})
     if layout:
         env.set_fixture_layout(layout)
-    obs = np.array([env.set_sim_state(s)["state"] for s in states[:1]])
+    env.set_sim_state(states[0])
     geometry = env.goal_geometry()  # at the first state, as a recording's reset records it
-    obs = np.concatenate([obs, [env.set_sim_state(s)["state"] for s in states[1:]]]) if len(states) > 1 else obs
+    obs = np.array([env.set_sim_state(s)["state"] for s in states])
     env.set_sim_state(states[-1])
     last_obs, _, _, _, info = env.step(actions[-1])
     next_obs = np.concatenate([obs[1:], last_obs["state"][None]], axis=0)

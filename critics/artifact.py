@@ -15,7 +15,8 @@ import io
 import math
 import os
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -184,6 +185,19 @@ class Critic:
     def tasks(self) -> list[str]:
         return list(self.encoder.tasks)
 
+    @cached_property
+    def _goal_columns(self) -> _Binding:
+        """A goal-relative binding without its episode: every encoded column, the binary ones unscaled."""
+        binary = self.encoder.dim - self.encoder.state_dim
+        return _Binding(
+            "",
+            0,
+            np.concatenate([self.normalization.obs_mean, np.zeros(binary, dtype=np.float32)]),
+            np.concatenate([1.0 / self.normalization.obs_std, np.ones(binary, dtype=np.float32)]).astype(np.float32),
+            _blas_operand(_side_by_side(self.network.obs_weight.detach())),
+            self.network.first_bias.detach()[:, 0, :].reshape(-1).numpy().astype(np.float32),
+        )
+
     @property
     def context(self) -> GoalContext | None:
         """The bound episode's goal-relative plan (None: unbound, or a task one-hot)."""
@@ -191,19 +205,8 @@ class Critic:
 
     def _binding_for(self, metadata: Mapping[str, Any], context: GoalContext | None = None) -> _Binding:
         context = self.encoder.check_env(metadata, self.path) if context is None else context
-        if isinstance(context, GoalContext):
-            binary = self.encoder.dim - self.encoder.state_dim
-            return _Binding(
-                context.task,
-                context.state_size,
-                np.concatenate([self.normalization.obs_mean, np.zeros(binary, dtype=np.float32)]),
-                np.concatenate([1.0 / self.normalization.obs_std, np.ones(binary, dtype=np.float32)]).astype(
-                    np.float32
-                ),
-                _blas_operand(_side_by_side(self.network.obs_weight.detach())),
-                self.network.first_bias.detach()[:, 0, :].reshape(-1).numpy().astype(np.float32),
-                context,
-            )
+        if isinstance(context, GoalContext):  # the columns do not depend on the episode: built once
+            return replace(self._goal_columns, task=context.task, state_size=context.state_size, context=context)
         key = context
         size = sum(s for _, s in self.encoder.layouts[key])
         fixed = torch.from_numpy(
