@@ -55,6 +55,13 @@ def _global_numpy_seeded(seed: int) -> Iterator[None]:
         np.random.set_state(saved)
 
 
+def sampled_start_seed(task_index: int, start: int) -> int:
+    """The placement seed of start `start` in a scene without shipped init states (`env@replace`): from the
+    task and the start alone, so that every episode, mode and worker of start k sees the same placement, as
+    with a shipped init state."""
+    return int(np.random.SeedSequence([int(task_index), int(start)]).generate_state(1)[0])
+
+
 class LiberoEnv(gym.Env):
     """One LIBERO task as a `gymnasium.Env` (see module docstring)."""
 
@@ -92,7 +99,8 @@ class LiberoEnv(gym.Env):
             )
         self.max_steps = int(max_steps if max_steps is not None else task.default_max_steps)
         self.settle_steps = int(settle_steps)
-        self._init_states = self.task.load_init_states()
+        self._init_states = self.task.load_init_states()  # with sampled starts, only their count is used
+        self._sampled_starts = any(p.samples_starts for p in self.perturbations)
         self._fixed_init = init_state
         if init_state is not None and not 0 <= init_state < len(self._init_states):
             raise UserInputError(f"init_state {init_state} out of range: expected 0..{len(self._init_states) - 1}")
@@ -185,9 +193,13 @@ class LiberoEnv(gym.Env):
             raise UserInputError(f"init_state {index} out of range: expected 0..{len(self._init_states) - 1}")
         self._init_index = int(index)
         self._episode_seed = int(self.np_random.integers(2**31))
-        with _global_numpy_seeded(self._episode_seed):
-            self._env.reset()
-        self._env.set_init_state(self._init_states[self._init_index])
+        if self._sampled_starts:
+            with _global_numpy_seeded(sampled_start_seed(self.task.index, self._init_index)):
+                self._env.reset()
+        else:
+            with _global_numpy_seeded(self._episode_seed):
+                self._env.reset()
+            self._env.set_init_state(self._init_states[self._init_index])
         self._clear_solver_state()
         for p in self.perturbations:
             p.after_reset(self.domain, self._episode_seed)

@@ -1,9 +1,10 @@
 """LIBERO-PRO perturbations as seeded, composable operators.
 
-Four axes, as in LIBERO-PRO: `object` (appearance of the task objects: colours, or `@texture` their
-textures), `init` (task objects moved 0.2-0.3 m;
+Four axes, as in LIBERO-PRO: `object` (the task objects: colours, `@texture` their textures, or
+`@scale` their size), `init` (task objects moved 0.2-0.3 m;
 or, `init@nudge`, up to 2 cm: fresh starts, not a robustness test), `language` (paraphrased or target-swapped
-instruction) and `env` (floor, wall and table swap); and LIBERO-PRO's language probe, `probe` (the
+instruction) and `env` (floor, wall and table swap; or, `env@replace`, LIBERO-PRO's substitution of
+another built-in scene); and LIBERO-PRO's language probe, `probe` (the
 instruction shuffled, replaced by an unrelated one, or emptied). Each operator acts at the stage where the
 change belongs: before the env is built (which BDDL file, which instruction, which scene textures), right
 after it is built (colours), or after every reset (positions). The package's shipped LIBERO-PRO variants are
@@ -84,6 +85,12 @@ class Perturbation:
         return dict(self._record)
 
     @property
+    def samples_starts(self) -> bool:
+        """Whether the env must sample its starts from the BDDL's placement regions (the shipped init
+        states do not fit the scene this operator builds)."""
+        return False
+
+    @property
     def robustness_axis(self) -> str:
         """The column a run under this operator reports in (`elegant report`): the axis, with its mode when
         it is not the generated default ("language@shipped" and "language@target_swap" are different
@@ -126,11 +133,15 @@ def _task_entities(domain) -> list[str]:
 
 
 class ObjectPerturbation(Perturbation):
-    """Task objects change appearance: new colours (generated), another texture of the scene on each of
-    their textured materials (texture), or LIBERO-PRO's object swaps (shipped)."""
+    """Task objects change appearance or size: new colours (generated), another texture of the scene on each
+    of their textured materials (texture), each movable task object grown by 1.1-1.2 (scale; not one the
+    goal stows inside a fixture, whose interior fits its own size), or LIBERO-PRO's object swaps (shipped)."""
 
     axis = "object"
-    modes = ("generated", "texture", "shipped")
+    modes = ("generated", "texture", "scale", "shipped")
+    # grown, never shrunk (shrunk plates and bowls, 0.84-0.87, left libero_goal tasks 5 and 6 unsolved by the
+    # scripted expert on some starts); 1.1-1.2 keeps the objects graspable by the Panda's gripper
+    scale_range = (1.1, 1.2)
 
     def plan(self, plan: BuildPlan) -> BuildPlan:
         if self.mode == "shipped":
@@ -144,6 +155,36 @@ class ObjectPerturbation(Perturbation):
             self._recolour(domain)
         elif self.mode == "texture":
             self._retexture(domain)
+        elif self.mode == "scale":
+            self._rescale(domain)
+
+    def after_reset(self, domain, episode_seed: int) -> None:
+        if self.mode == "scale":
+            _rest_scaled_objects(domain, self._record["scales"])
+
+    def _rescale(self, domain) -> None:
+        from base_suites.model_scaling import scale_subtree
+
+        rng = self.rng(2)
+        model, data = domain.sim.model._model, domain.sim.data._data
+        scales = {}
+        stowed = {  # objects the goal puts inside a fixture (a drawer): its interior fits their own size
+            p[1]
+            for p in domain.parsed_problem["goal_state"]
+            if p[0] == "in"
+            and p[2] in domain.object_sites_dict
+            and domain.object_sites_dict[p[2]].parent_name in domain.fixtures_dict
+        }
+        for entity in _task_entities(domain):
+            if entity not in domain.objects_dict or not domain.objects_dict[entity].joints or entity in stowed:
+                continue  # fixtures (cabinets, stoves) keep their size: their joints and regions are calibrated
+            factor = float(rng.uniform(*self.scale_range))
+            scale_subtree(model, data, int(domain.obj_body_id[entity]), factor)
+            for site in domain.object_sites_dict.values():  # LIBERO checks `In` against its own copy of sizes
+                if site.parent_name == entity:
+                    site.size = np.asarray(site.size, dtype=float) * factor
+            scales[entity] = round(float(factor), 4)
+        self._record["scales"] = scales
 
     def _recolour(self, domain) -> None:
         rng = self.rng()
@@ -177,6 +218,24 @@ class ObjectPerturbation(Perturbation):
                 chosen.append(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_TEXTURE, texture))
             textures[entity] = chosen
         self._record["textures"] = textures
+
+
+def _rest_scaled_objects(domain, scales: dict[str, float]) -> None:
+    """Move each resized object vertically so that its lowest point is where the unresized object's was
+    (resizing about the body origin would sink a grown object into its support, or drop a shrunk one)."""
+    import mujoco
+
+    from base_suites.sim_view import SimView
+
+    model, data = domain.sim.model._model, domain.sim.data._data
+    mujoco.mj_forward(model, data)
+    view = SimView(domain)
+    for entity, factor in scales.items():
+        origin_z = view.position(entity)[2]
+        lowest = view.geom_points(entity)[:, 2].min()
+        adr = model.jnt_qposadr[model.joint(domain.objects_dict[entity].joints[0]).id]
+        data.qpos[adr + 2] += (origin_z + (lowest - origin_z) / factor) - lowest
+    mujoco.mj_forward(model, data)
 
 
 class InitPerturbation(Perturbation):
@@ -334,11 +393,21 @@ class ProbePerturbation(Perturbation):
 
 
 class EnvPerturbation(Perturbation):
-    """The scene changes around the task: floor and wall textures swapped, the table recoloured."""
+    """The scene changes around the task. Generated: floor and wall textures swapped, the table recoloured.
+    Replace (LIBERO-PRO's environment axis): the task moves into another of LIBERO's five built-in scenes
+    (`base_suites.scenes`), drawn per task from the seed; its starts are sampled from the BDDL's placement
+    regions, since the shipped init states belong to the old scene."""
 
     axis = "env"
+    modes = ("generated", "replace")
+
+    @property
+    def samples_starts(self) -> bool:
+        return self.mode == "replace"
 
     def plan(self, plan: BuildPlan) -> BuildPlan:
+        if self.mode == "replace":
+            return self._replace_scene(plan)
         rng = self.rng()
         style = {
             "floor_style": FLOOR_STYLES[rng.integers(len(FLOOR_STYLES))],
@@ -347,7 +416,21 @@ class EnvPerturbation(Perturbation):
         self._record.update(style)
         return BuildPlan(plan.task, plan.instruction, {**plan.env_kwargs, "scene_properties": style})
 
+    def _replace_scene(self, plan: BuildPlan) -> BuildPlan:
+        from base_suites.scenes import SCENES, scene_bddl_file, scene_of
+        from base_suites.suites import with_bddl
+
+        with open(plan.task.bddl_file, encoding="utf-8") as f:
+            current = scene_of(f.read(), plan.task.bddl_file)
+        others = [scene for scene in SCENES if scene != current]
+        scene = others[self.rng(plan.task.index).integers(len(others))]
+        self._record.update(original_scene=current, scene=scene)
+        task = with_bddl(plan.task, scene_bddl_file(plan.task.bddl_file, scene))
+        return BuildPlan(task, plan.instruction, plan.env_kwargs)
+
     def after_build(self, domain) -> None:
+        if self.mode == "replace":
+            return
         model = domain.sim.model._model
         rgb = self.rng(1).uniform(0.2, 1.0, size=3)
         table_mats = {

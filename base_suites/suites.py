@@ -6,6 +6,7 @@ shipped init states (.npz) give the 50 starts every LIBERO evaluation uses.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 from collections.abc import Sequence
@@ -103,9 +104,6 @@ def list_tasks(suite: str) -> list[TaskSpec]:
         task = bench.get_task(i)
         bddl = os.path.join(bddl_root, task.problem_folder, task.bddl_file)
         info = mods["get_problem_info"](bddl)
-        from libero.libero.envs.bddl_utils import robosuite_parse_problem
-
-        parsed = robosuite_parse_problem(bddl)
         init_file = os.path.join(init_root, task.problem_folder, task.init_states_file)
         tasks.append(
             TaskSpec(
@@ -115,11 +113,23 @@ def list_tasks(suite: str) -> list[TaskSpec]:
                 language=info["language_instruction"],
                 bddl_file=bddl,
                 init_states_file=init_file,
-                goal=tuple(tuple(p) for p in parsed["goal_state"]),
+                goal=_parse_goal(bddl),
                 n_init_states=_count_init_states(init_file),
             )
         )
     return tasks
+
+
+def _parse_goal(bddl_file: str) -> tuple[tuple[str, ...], ...]:
+    from libero.libero.envs.bddl_utils import robosuite_parse_problem
+
+    return tuple(tuple(p) for p in quietly(robosuite_parse_problem, bddl_file)["goal_state"])
+
+
+def with_bddl(task: TaskSpec, bddl_file: str) -> TaskSpec:
+    """The task read from another BDDL file (a rewrite of its own, e.g. moved into another scene): the
+    goal is parsed from it; suite, index, name, instruction and the count of starts stay the task's."""
+    return dataclasses.replace(task, bddl_file=bddl_file, goal=_parse_goal(bddl_file))
 
 
 def _count_init_states(init_file: str) -> int:

@@ -50,7 +50,9 @@ def test_random_actions_give_the_same_states_on_each_suite(suite):
     assert_same(suite, 0, actions=ACTIONS)
 
 
-@pytest.mark.parametrize("perturbation", ["object", "init", "language", "env", "init@nudge"])
+@pytest.mark.parametrize(
+    "perturbation", ["object", "init", "language", "env", "init@nudge", "object@scale", "env@replace"]
+)
 def test_random_actions_give_the_same_states_under_each_perturbation(perturbation):
     assert_same("libero_goal", 1, actions=ACTIONS, perturbation=perturbation)
 

@@ -18,6 +18,7 @@ def test_parse_perturbations_and_refusals():
         parse_perturbations("init:x")
     with pytest.raises(UserInputError, match="mode"):
         parse_perturbations("env@shipped")
+    assert parse_perturbations("env@replace")[0].samples_starts and not parse_perturbations("env")[0].samples_starts
 
 
 def test_paraphrase_is_seeded_and_varied():
@@ -142,7 +143,61 @@ def test_language_probe_corrupts_the_instruction_and_keeps_the_task():
     plain.close()
 
 
-@pytest.mark.parametrize("perturbation", ["init:2", "object:1,env:1,language:1", "object@texture", "probe@empty"])
+def test_object_scale_grows_movable_task_objects_and_rests_them_where_they_stood():
+    plain = make_env("libero_goal", 8, seed=0, settle_steps=0)
+    env = make_env("libero_goal", 8, seed=0, perturbation="object:3@scale", settle_steps=0)
+    plain.reset(options={"init_state": 2}, seed=0)
+    _, info = env.reset(options={"init_state": 2}, seed=0)
+    scales = info["perturbation"][0]["scales"]
+    assert set(scales) == {"akita_black_bowl_1", "plate_1"} and all(1.1 <= s <= 1.2 for s in scales.values())
+    model, base = env.domain.sim.model._model, plain.domain.sim.model._model
+    for name, s in scales.items():
+        grown, own = env.sim.geom_points(name), plain.sim.geom_points(name)
+        assert np.ptp(grown[:, 0]) == pytest.approx(s * np.ptp(own[:, 0]), rel=1e-3)  # the footprint grew by s
+        assert grown[:, 2].min() == pytest.approx(own[:, 2].min(), abs=1e-4)  # still standing on the table
+        body = env.domain.obj_body_id[name]
+        # (scales are recorded to 4 digits)
+        assert model.body_mass[body] == pytest.approx(s**3 * base.body_mass[body], rel=1e-3)
+    region = "basket_1_contain_region"  # LIBERO checks `In` against its own copy of a region's size
+    basket, plain_basket = (
+        make_env("libero_object", 0, seed=0, perturbation=p, settle_steps=0) for p in ("object@scale", None)
+    )
+    grown = basket.perturbations[0].describe()["scales"]["basket_1"]
+    own = np.asarray(plain_basket.domain.object_sites_dict[region].size, float)
+    assert np.allclose(basket.domain.object_sites_dict[region].size, grown * own, rtol=1e-3)
+    untouched = [n for n in env.sim.objects if n not in scales]
+    assert all(np.allclose(env.sim.geom_points(n), plain.sim.geom_points(n)) for n in untouched)
+    stowed = make_env("libero_goal", 3, seed=0, perturbation="object@scale", settle_steps=0)
+    assert stowed.perturbations[0].describe()["scales"] == {}  # the bowl the goal puts in the drawer keeps its size
+    for e in (plain, env, stowed, basket, plain_basket):
+        e.close()
+
+
+def test_env_replace_moves_the_task_into_another_scene_with_sampled_starts():
+    plain = make_env("libero_object", 2, seed=0, settle_steps=0)
+    env = make_env("libero_object", 2, seed=0, perturbation="env:1@replace", settle_steps=0)
+    record = env.perturbations[0].describe()
+    assert record["original_scene"] == "floor" and record["scene"] != "floor"
+    assert env.domain.workspace_name == record["scene"] and plain.domain.workspace_name == "floor"
+    assert env.metadata["state_layout"] == plain.metadata["state_layout"]
+    assert env.metadata["goal"] == plain.metadata["goal"]
+    assert env.instruction == plain.instruction
+    target = "salad_dressing_1"
+    starts = []
+    for k, seed in ((0, 1), (1, 1), (0, 7)):
+        env.reset(options={"init_state": k}, seed=seed)
+        starts.append(env.sim.position(target))
+    assert np.allclose(starts[0], starts[2])  # start k is k's placement, whatever the episode seed
+    assert not np.allclose(starts[0], starts[1])
+    plain.reset(options={"init_state": 0}, seed=1)
+    assert abs(starts[0][2] - plain.sim.position(target)[2]) > 0.3  # on a table now, no longer on the floor
+    env.close(), plain.close()
+
+
+@pytest.mark.parametrize(
+    "perturbation",
+    ["init:2", "object:1,env:1,language:1", "object@texture", "object@scale", "env@replace", "probe@empty"],
+)
 def test_task_stays_solvable_under_perturbation(perturbation):
     from base_suites.experts import ScriptedExpert
 

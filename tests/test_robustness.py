@@ -43,7 +43,12 @@ def records(run_dir) -> list[dict]:
 
 def test_one_run_per_axis_with_its_perturbation(run):
     out, result = run
-    expected = {"ori": None, "object": "object,object@texture", "position": "init", "probe_empty": "probe@empty"}
+    expected = {
+        "ori": None,
+        "object": "object,object@texture,object@scale",
+        "position": "init",
+        "probe_empty": "probe@empty",
+    }
     for axis, perturbation in expected.items():
         config = json.loads((out / SUITE / axis / "config.json").read_text())
         assert config["perturbation"] == perturbation and config["episodes"] == 2 and config["seed"] == 0

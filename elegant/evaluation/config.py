@@ -156,11 +156,11 @@ class RolloutConfig:
 # LIBERO-PRO's five axes and the language probe, each as the perturbation (`base_suites.perturbations`) its
 # runs use; `shipped` replaces a generated variant with LIBERO-PRO's own files where they exist
 PRO_AXES = {
-    "object": "object,object@texture",  # colours and textures: LIBERO-PRO's object axis changes appearance
+    "object": "object,object@texture,object@scale",  # LIBERO-PRO's object axis: colour, texture and size
     "position": "init",
     "semantic": "language",
     "task": "language@target_swap",
-    "env": "env",
+    "env": "env@replace",  # LIBERO-PRO's: the task moved into another of LIBERO's five built-in scenes
 }
 PROBE_AXES = {"probe_shuffled": "probe", "probe_unrelated": "probe@unrelated", "probe_empty": "probe@empty"}
 SHIPPED_AXES = {"object": "object@shipped", "position": "init@shipped", "semantic": "language@shipped"}
