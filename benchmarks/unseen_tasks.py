@@ -9,11 +9,14 @@ task, its branch rollouts from starts 0-24, the task-onehot critics and their ru
    starts of the UNSEEN tasks and of the SEEN tasks, paired per start;
 4. the critics' AUROC on the rollouts of each group (held out for the unseen tasks, training data for the
    seen ones; `critics.evaluate_critic`, the members' mean).
-With --compare-encodings, also goal-relative critics on every task against the chain's task-onehot
-critics, both with ungated JITI on every task: what the task-agnostic encoding costs on seen tasks.
+With --gate, also JITI gated per unseen task (`elegant gate`, docs/design.md §7.8) from base and JITI
+validation runs on that task's rollout starts: the critics still learn nothing from the task, the gate
+spends validation episodes on it. With --compare-encodings, also goal-relative critics on every task
+against the chain's task-onehot critics, both with ungated JITI on every task: what the task-agnostic
+encoding costs on seen tasks.
 
     python benchmarks/unseen_tasks.py --out runs/effect --suites libero_object --seen 0-4 --unseen 5-9
-        [--compare-encodings] [--workers 2] [every chain option of jiti_effect.py]
+        [--gate] [--compare-encodings] [--workers 2] [every chain option of jiti_effect.py]
 
 Targets: on the unseen tasks JITI's ESR at least 10 points above base with success not lower; on every
 task the goal-relative critics at most 3 ESR points below the task one-hot. Last line: one JSON object.
@@ -33,6 +36,7 @@ from base_suites.runtime.jobs import workers_from_args
 from base_suites.runtime.settings import index_list
 from critics import evaluate_critic, train_critic
 from elegant.evaluation.runner import evaluate
+from elegant.intervention.gate import write_gate
 from elegant.pipeline import chain_effects, init_split, run_chain
 
 TARGETS = {"unseen_esr_gain": 0.10, "unseen_success_drop": 0.0, "encoding_esr_cost": 0.03}
@@ -84,11 +88,30 @@ def paired(
     return chain_effects(runs)
 
 
+def gated_run(cfg, suite: str, tasks: list[int], policy: str, critic: str, folder: str, workers: int) -> str:
+    """JITI gated per task on the held-out starts, from base and JITI validation runs on the tasks' rollout
+    starts with the same critics; the gated run's directory (in `folder`, as are the validation runs)."""
+    rollout_starts, eval_starts = init_split(cfg)
+    validation = {mode: os.path.join(folder, f"validate_{mode}_unseen") for mode in ("base", "jiti")}
+    for mode, run in validation.items():
+        evaluate(
+            suite, tasks, policy, critic, cfg.eval_config(mode, rollout_starts), out=run, resume=True, workers=workers
+        )
+    gate = os.path.join(folder, "gate_unseen.json")
+    write_gate(validation["base"], validation["jiti"], gate, overwrite=True)  # the same file on every resume
+    run = os.path.join(folder, "jiti_unseen_gated")
+    evaluate(
+        suite, tasks, policy, critic, cfg.eval_config("jiti", eval_starts, gate), out=run, resume=True, workers=workers
+    )
+    return run
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     add_chain_arguments(parser, recipe="effect")
     parser.add_argument("--seen", type=index_list, default=(0, 1, 2, 3, 4), help="task indices the critics learn from")
     parser.add_argument("--unseen", type=index_list, default=(5, 6, 7, 8, 9), help="task indices they never see")
+    parser.add_argument("--gate", action="store_true", help="also JITI gated per unseen task from validation runs")
     parser.add_argument(
         "--compare-encodings", action="store_true", help="also goal-relative against task-onehot critics on every task"
     )
@@ -127,6 +150,9 @@ def main() -> None:
             aurocs = [evaluate_critic(member, data[1:], keys)["auroc"] for member in critic.split(",")]
             mean = None if None in aurocs else sum(aurocs) / len(aurocs)  # the members' mean
             row[group] = {"modes": effects, "auroc": mean}
+        if args.gate:
+            gated = gated_run(config, suite, list(args.unseen), policy, critic, folder, workers)
+            row["unseen_gated"] = {"modes": chain_effects({"base": os.path.join(folder, "base_unseen"), "jiti": gated})}
         if args.compare_encodings:
             every = train_members(config, data, os.path.join(folder, "all_critics"), None)
             compared = {}
@@ -150,6 +176,10 @@ def _verdicts(row: dict) -> dict:
         "unseen_esr_gain": unseen["jiti"]["esr"] - unseen["base"]["esr"],
         "unseen_success_change": unseen["jiti"]["success_rate"] - unseen["base"]["success_rate"],
     }
+    if "unseen_gated" in row:
+        gated = row["unseen_gated"]["modes"]
+        out["unseen_gated_esr_gain"] = gated["jiti"]["esr"] - gated["base"]["esr"]
+        out["unseen_gated_success_change"] = gated["jiti"]["success_rate"] - gated["base"]["success_rate"]
     if "encodings" in row:
         by = row["encodings"]
         out["encoding_esr_cost"] = by["task-onehot"]["jiti"]["esr"] - by["goal-relative"]["jiti"]["esr"]
@@ -161,6 +191,7 @@ def print_table(results: dict) -> None:
     print(f"{'suite':14s} {'tasks':7s} {'mode':5s} {'success':>8s} {'ESR':>6s} {'made/spoiled':>13s} {'p':>8s} AUROC")
     for suite, row in results.items():
         groups = [(g, row[g]["modes"], row[g]["auroc"]) for g in ("unseen", "seen")]
+        groups += [("unseen+gate", row["unseen_gated"]["modes"], None)] if "unseen_gated" in row else []
         groups += [(f"all/{name}", modes, None) for name, modes in row.get("encodings", {}).items()]
         for group, modes, auroc in groups:
             for mode, r in modes.items():
