@@ -62,13 +62,17 @@ def test_table_recomputed_by_hand_from_the_episode_records(run):
     out, result = run
     for name, field in (("success", "success"), ("elegant", "elegant")):
         acc = {axis: np.mean([r[field] for r in records(out / SUITE / axis)]) for axis in ("ori", *AXES)}
-        row = result[name][SUITE]
+        row = dict(result[name][SUITE])
         assert row["acc_ori"] == acc["ori"]
         for axis in ("object", "position"):
             assert row["acc"][axis] == acc[axis] and row["gap"][axis] == acc["ori"] - acc[axis]
         assert row["pro"] == pytest.approx((acc["object"] + acc["position"]) / 2)
         assert row["probes"] == {"probe_empty": {"acc": acc["probe_empty"], "gap": acc["ori"] - acc["probe_empty"]}}
-        assert result[name]["total"] == row  # one suite: the total is its row
+        intervals = row.pop("ci95")  # each run's own interval over starts, as its summary gives it
+        key = "success_ci95" if name == "success" else "esr_ci95"
+        for axis in ("ori", *AXES):
+            assert intervals[axis] == json.loads((out / SUITE / axis / "summary.json").read_text())[key]
+        assert result[name]["total"] == row  # one suite: the total is its row (the total has no interval)
     assert json.loads((out / "robustness.json").read_text()) == json.loads(json.dumps(result))
     report = (out / "report.md").read_text()
     assert "## From success" in report and "## From elegant success (ESR)" in report

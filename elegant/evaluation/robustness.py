@@ -38,7 +38,7 @@ from base_suites.runtime.io import atomic_write_json, changed_fields, read_json_
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.outputs import check_output
-from elegant.evaluation.config import PRO_AXES, EvalConfig, RobustnessConfig
+from elegant.evaluation.config import PRO_AXES, PROBE_AXES, EvalConfig, RobustnessConfig
 from elegant.evaluation.metrics import robustness_metrics
 from elegant.evaluation.runner import evaluate
 from elegant.policies.specs import describe_policy
@@ -96,7 +96,8 @@ def _refuse_unreadable_axes(policy: Any, critic: Any, plan: dict[str, dict[str, 
 
 
 def _table(runs: dict[str, dict[str, dict[str, Any]]]) -> dict[str, Any]:
-    """LIBERO-PRO's numbers per suite and in total, once from success and once from ESR."""
+    """LIBERO-PRO's numbers per suite and in total, once from success and once from ESR; per suite also
+    each run's 95% interval over starts (`ci95`, as its summary gives it; none for the total)."""
     table: dict[str, Any] = {}
     for name, key, _ in SOURCES:
         rates = {suite: {axis: float(s[key]) for axis, s in axes.items()} for suite, axes in runs.items()}
@@ -108,6 +109,9 @@ def _table(runs: dict[str, dict[str, dict[str, Any]]]) -> dict[str, Any]:
             metrics = robustness_metrics({"ori": r["ori"], **pro_axes}) if pro_axes else {"acc_ori": r["ori"]}
             probes = {a: {"acc": v, "gap": r["ori"] - v} for a, v in r.items() if a not in PRO_AXES and a != "ori"}
             table[name][suite] = {**metrics, "probes": probes}
+            if suite in runs:
+                interval = key.replace("_rate", "") + "_ci95"
+                table[name][suite]["ci95"] = {a: list(s[interval]) for a, s in runs[suite].items() if interval in s}
     return table
 
 
@@ -205,7 +209,7 @@ def _cells(entry: dict[str, Any], axes: Sequence[str]) -> list[str]:
 
 def _markdown(result: dict[str, Any]) -> str:
     cfg = result["config"]
-    axes = [a for a in cfg["axes"] if a != "ori"]
+    axes = _ordered_axes(cfg)[1:]
     evaluation = cfg["evaluation"]
     lines = [
         "# LIBERO-PRO robustness: success and elegant success",
@@ -213,7 +217,7 @@ def _markdown(result: dict[str, Any]) -> str:
         f"- policy {cfg['policy']}; critic {cfg['critic'] or 'none'}; mode {evaluation['jiti']['mode']}",
         f"- {evaluation['episodes']} episodes per task and axis, seed {evaluation['seed']}; tasks "
         f"{'all' if cfg['tasks'] is None else ', '.join(map(str, cfg['tasks']))}",
-        "- axes: " + ", ".join(f"{a} ({spec})" for a, spec in cfg["axes"].items() if a != "ori"),
+        "- axes: " + ", ".join(f"{a} ({cfg['axes'][a]})" for a in axes),
         "",
         "Each cell: Acc on the axis (gap to the original in points; a positive gap is a drop). PRO: mean Acc over "
         "the LIBERO-PRO axes run; the probes (the instruction corrupted, the task unchanged) stay outside it. "
@@ -227,24 +231,37 @@ def _markdown(result: dict[str, Any]) -> str:
 
 
 def _plot(result: dict[str, Any], path: Path) -> Path:
-    """Grouped bars: per suite (and the total), Acc on the original and on each axis; success and ESR."""
+    """Grouped bars: per suite (and the total, when there are several suites), Acc on the original and on
+    each axis with its 95% interval over starts; success and ESR; one legend, below the panels."""
     from matplotlib.figure import Figure
 
-    axes = list(result["config"]["axes"])
-    fig = Figure(figsize=(12, 4), layout="constrained")
-    for ax, (name, _, title) in zip(fig.subplots(1, 2, sharey=True), SOURCES):
-        rows = result[name]
+    axes = _ordered_axes(result["config"])
+    fig = Figure(figsize=(12, 4.4), layout="constrained")
+    panels = fig.subplots(1, 2, sharey=True)
+    for ax, (name, _, title) in zip(panels, SOURCES):
+        rows = {s: e for s, e in result[name].items() if s != "total" or len(result[name]) > 2}
         width = 0.8 / len(axes)
         for i, axis in enumerate(axes):
-            values = [
-                entry["acc_ori"]
-                if axis == "ori"
-                else (entry["acc"][axis] if axis in PRO_AXES else entry["probes"][axis]["acc"])
-                for entry in rows.values()
-            ]
-            ax.bar(np.arange(len(rows)) + (i - (len(axes) - 1) / 2) * width, values, width, label=axis)
+            values = np.array([_acc(entry, axis) for entry in rows.values()])
+            bounds = np.array([entry.get("ci95", {}).get(axis, (v, v)) for entry, v in zip(rows.values(), values)])
+            errors = np.abs(bounds.T - values)
+            x = np.arange(len(rows)) + (i - (len(axes) - 1) / 2) * width
+            ax.bar(x, values, width, yerr=errors, capsize=2, error_kw={"elinewidth": 0.8}, label=axis)
         ax.set_xticks(range(len(rows)), list(rows))
         ax.set_ylim(0, 1.05)
-        ax.set_title(f"Acc from {title}", fontsize=10)
-        ax.legend(fontsize=7, ncol=3)
+        ax.set_title(f"Acc from {title}; bars: 95% interval over starts", fontsize=10)
+    panels[0].set_ylabel("Acc (fraction of episodes)")
+    handles, labels = panels[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=len(axes), fontsize=8)
     return save_figure(fig, path)
+
+
+def _ordered_axes(config: dict[str, Any]) -> list[str]:
+    """The run's axes in LIBERO-PRO's order, "ori" first and the probes last (a JSON record sorts its keys)."""
+    return [a for a in ("ori", *PRO_AXES, *PROBE_AXES) if a in config["axes"]]
+
+
+def _acc(entry: dict[str, Any], axis: str) -> float:
+    if axis == "ori":
+        return entry["acc_ori"]
+    return entry["acc"][axis] if axis in PRO_AXES else entry["probes"][axis]["acc"]
