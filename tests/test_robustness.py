@@ -18,7 +18,7 @@ from elegant.policies.bc_train import train_policy
 pytestmark = pytest.mark.sim
 SUITE = "libero_object"
 AXES = ("object", "position", "probe_empty")
-EVAL = {"mode": "base", "episodes": 2, "max_steps": 8, "seed": 0, "progress": False}
+EVAL = {"mode": "base", "episodes": 2, "max_steps": 8, "seed": 0, "init_states": (0, 1), "progress": False}
 
 
 @pytest.fixture(scope="module")

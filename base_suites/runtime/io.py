@@ -71,7 +71,9 @@ def changed_fields(
     """(key, stored value, this run's value) for each setting in which a run directory's stored record
     `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
     by key (a nested setting as 'outer.inner'); a resume refuses any of them (every resumable command
-    compares settings this one way). `added`: as `with_added_settings` fills in."""
+    compares settings this one way). `new` is compared as it would be stored (JSON: a tuple is a list).
+    `added`: as `with_added_settings` fills in."""
+    new = json.loads(json.dumps(new, default=str))
     old = with_added_settings(old, new, added)
     changed = []
     for k in sorted(set(old) | set(new)):
