@@ -71,10 +71,10 @@ def changed_fields(
     """(key, stored value, this run's value) for each setting in which a run directory's stored record
     `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
     by key (a nested setting as 'outer.inner'); a resume refuses any of them (every resumable command
-    compares settings this one way). `new` is compared as it would be stored (JSON: a tuple is a list).
+    compares settings this one way). Both sides are compared as JSON stores them (a tuple is a list).
     `added`: as `with_added_settings` fills in."""
-    new = json.loads(json.dumps(new, default=str))
-    old = with_added_settings(old, new, added)
+    new = _as_stored(new)
+    old = _as_stored(with_added_settings(old, new, added))
     changed = []
     for k in sorted(set(old) | set(new)):
         if k in ignore or old.get(k) == new.get(k):
@@ -84,6 +84,11 @@ def changed_fields(
         else:
             changed.append((k, old.get(k), new.get(k)))
     return changed
+
+
+def _as_stored(record: Any) -> Any:
+    """`record` as JSON would store it (tuples become lists), so that stored and live settings compare."""
+    return json.loads(json.dumps(record, default=str))
 
 
 def with_added_settings(old: Any, new: dict, added: dict | None) -> dict:
