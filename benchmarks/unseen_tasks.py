@@ -188,7 +188,7 @@ def _verdicts(row: dict) -> dict:
 
 def print_table(results: dict) -> None:
     """Per suite and task group: base and JITI success and ESR, the pairing, the critics' AUROC."""
-    print(f"{'suite':14s} {'tasks':7s} {'mode':5s} {'success':>8s} {'ESR':>6s} {'made/spoiled':>13s} {'p':>8s} AUROC")
+    print(f"{'suite':14s} {'tasks':17s} {'mode':5s} {'success':>8s} {'ESR':>6s} {'made/spoiled':>13s} {'p':>8s} AUROC")
     for suite, row in results.items():
         groups = [(g, row[g]["modes"], row[g]["auroc"]) for g in ("unseen", "seen")]
         groups += [("unseen+gate", row["unseen_gated"]["modes"], None)] if "unseen_gated" in row else []
@@ -199,7 +199,7 @@ def print_table(results: dict) -> None:
                 p = f"{r['p_value']:.2g}" if "p_value" in r else ""
                 shown = f"{auroc:.3f}" if auroc is not None and mode != "base" else ""
                 rates = f"{r['success_rate']:8.1%} {r['esr']:6.1%}"
-                print(f"{suite:14s} {group:7s} {mode:5s} {rates} {pair:>13s} {p:>8s} {shown}")
+                print(f"{suite:14s} {group:17s} {mode:5s} {rates} {pair:>13s} {p:>8s} {shown}")
 
 
 def _chain_critics(out: str, config) -> str:
