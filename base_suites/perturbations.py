@@ -139,8 +139,8 @@ class ObjectPerturbation(Perturbation):
 
     axis = "object"
     modes = ("generated", "texture", "scale", "shipped")
-    # grown, never shrunk (shrunk plates and bowls, 0.84-0.87, left libero_goal tasks 5 and 6 unsolved by the
-    # scripted expert on some starts); 1.1-1.2 keeps the objects graspable by the Panda's gripper
+    # grown only, by as much as keeps every task solvable by the scripted expert and the objects graspable
+    # by the Panda's gripper (shrinking did not: docs/lab/robustness-axes.md)
     scale_range = (1.1, 1.2)
 
     def plan(self, plan: BuildPlan) -> BuildPlan:
@@ -183,7 +183,7 @@ class ObjectPerturbation(Perturbation):
             for site in domain.object_sites_dict.values():  # LIBERO checks `In` against its own copy of sizes
                 if site.parent_name == entity:
                     site.size = np.asarray(site.size, dtype=float) * factor
-            scales[entity] = round(float(factor), 4)
+            scales[entity] = round(factor, 4)
         self._record["scales"] = scales
 
     def _recolour(self, domain) -> None:

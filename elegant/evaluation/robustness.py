@@ -46,7 +46,11 @@ from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, percent, save_figure
 
 ROBUSTNESS_FORMAT = "libero-elegant-robustness/1"
-SOURCES = (("success", "success_rate", "success"), ("elegant", "esr", "elegant success (ESR)"))
+# (table name, a run summary's rate and its 95% interval, title)
+SOURCES = (
+    ("success", "success_rate", "success_ci95", "success"),
+    ("elegant", "esr", "esr_ci95", "elegant success (ESR)"),
+)
 
 
 def _variant_tasks(suite: str, tasks: Sequence[int | str] | None, spec: str) -> list[str]:
@@ -99,7 +103,7 @@ def _table(runs: dict[str, dict[str, dict[str, Any]]]) -> dict[str, Any]:
     """LIBERO-PRO's numbers per suite and in total, once from success and once from ESR; per suite also
     each run's 95% interval over starts (`ci95`, as its summary gives it; none for the total)."""
     table: dict[str, Any] = {}
-    for name, key, _ in SOURCES:
+    for name, key, interval, _ in SOURCES:
         rates = {suite: {axis: float(s[key]) for axis, s in axes.items()} for suite, axes in runs.items()}
         mean = {axis: float(np.mean([r[axis] for r in rates.values()])) for axis in next(iter(rates.values()))}
         rows = {**rates, "total": mean}
@@ -110,7 +114,6 @@ def _table(runs: dict[str, dict[str, dict[str, Any]]]) -> dict[str, Any]:
             probes = {a: {"acc": v, "gap": r["ori"] - v} for a, v in r.items() if a not in PRO_AXES and a != "ori"}
             table[name][suite] = {**metrics, "probes": probes}
             if suite in runs:
-                interval = key.replace("_rate", "") + "_ci95"
                 table[name][suite]["ci95"] = {a: list(s[interval]) for a, s in runs[suite].items() if interval in s}
     return table
 
@@ -223,7 +226,7 @@ def _markdown(result: dict[str, Any]) -> str:
         "the LIBERO-PRO axes run; the probes (the instruction corrupted, the task unchanged) stay outside it. "
         "total: the mean over suites.",
     ]
-    for name, _, title in SOURCES:
+    for name, _, _, title in SOURCES:
         rows = [[suite, *_cells(entry, axes)] for suite, entry in result[name].items()]
         lines += ["", f"## From {title}", "", markdown_table(["suite", "ori", *axes, "PRO"], rows)]
     lines += ["", "![robustness](robustness.png)"]
@@ -238,7 +241,7 @@ def _plot(result: dict[str, Any], path: Path) -> Path:
     axes = _ordered_axes(result["config"])
     fig = Figure(figsize=(12, 4.4), layout="constrained")
     panels = fig.subplots(1, 2, sharey=True)
-    for ax, (name, _, title) in zip(panels, SOURCES):
+    for ax, (name, _, _, title) in zip(panels, SOURCES):
         rows = {s: e for s, e in result[name].items() if s != "total" or len(result[name]) > 2}
         width = 0.8 / len(axes)
         for i, axis in enumerate(axes):
