@@ -4,6 +4,7 @@ by hand from the episode records, resume, and the refusals before any work."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -85,10 +86,35 @@ def test_resume_reruns_nothing_and_refuses_other_settings(run, policy):
     before = {p: p.stat().st_mtime_ns for p in files}
     again = run_robustness([SUITE], policy, None, out, RobustnessConfig(axes=AXES), tasks=[0], resume=True, **EVAL)
     assert again == result and {p: p.stat().st_mtime_ns for p in files} == before
-    with pytest.raises(UserInputError, match="field 'evaluation.episodes' is 2 but this run has 3"):
+    with pytest.raises(UserInputError, match="field 'evaluation.seed' is 0 but this run has 1"):
         run_robustness(
-            [SUITE], policy, None, out, RobustnessConfig(axes=AXES), tasks=[0], resume=True, **{**EVAL, "episodes": 3}
+            [SUITE], policy, None, out, RobustnessConfig(axes=AXES), tasks=[0], resume=True, **{**EVAL, "seed": 1}
         )
+
+
+def test_resume_with_more_episodes_extends_every_axis(run, policy, tmp_path):
+    """More episodes per task extend each axis's run: its finished episodes are kept as they were, and the
+    table counts the new ones; the run then equals a fresh one with as many episodes."""
+    out, _ = run
+    grown = tmp_path / "grown"
+    shutil.copytree(out, grown)
+    kept = {axis: records(grown / SUITE / axis) for axis in ("ori", *AXES)}
+    more = {**EVAL, "episodes": 3, "init_states": (0, 1, 2)}
+    with pytest.raises(UserInputError, match="field 'evaluation.init_states'"):
+        run_robustness([SUITE], policy, None, grown, RobustnessConfig(axes=AXES), tasks=[0], resume=True, **more)
+    more["init_states"] = EVAL["init_states"]
+    with pytest.warns(UserWarning, match="3 episodes per task from 2 starts"):
+        result = run_robustness(
+            [SUITE], policy, None, grown, RobustnessConfig(axes=AXES), tasks=[0], resume=True, **more
+        )
+    assert result["config"]["evaluation"]["episodes"] == 3
+    for axis, before in kept.items():
+        after = records(grown / SUITE / axis)
+        assert len(after) == 3 and after[:2] == before
+        summary = json.loads((grown / SUITE / axis / "summary.json").read_text())
+        assert summary["episodes"] == 3
+    fresh = run_robustness([SUITE], policy, None, tmp_path / "fresh", RobustnessConfig(axes=AXES), tasks=[0], **more)
+    assert result["success"] == fresh["success"] and result["elegant"] == fresh["elegant"]
 
 
 def test_refusals_before_any_work(policy, tmp_path, capsys):

@@ -6,14 +6,16 @@ The table then holds, per suite, Acc_ori, Acc and gap = Acc_ori - Acc per LIBERO
 mean over those axes; the language probes are reported beside them, outside PRO. The total row is the
 mean over suites (every suite has as many tasks and episodes), as LIBERO-PRO's leaderboard reports.
 
-Axes and what they run (`RobustnessConfig`): object (generated colours, or LIBERO-PRO's object swap),
-position (objects moved 0.2-0.3 m, or its position swap), semantic (paraphrase, or its paraphrases), task
-(its target swap: a new goal, so a policy must read the instruction), env (floor, wall and table), and the
-probes (instruction shuffled, unrelated or empty: the task is unchanged, only the words are not).
+Axes and what they run (`RobustnessConfig`): object (generated colours, textures and sizes, or LIBERO-PRO's
+object swap), position (objects moved 0.2-0.3 m, or its position swap), semantic (paraphrase, or its
+paraphrases), task (its target swap: a new goal, so a policy must read the instruction), env (the task moved
+into another of LIBERO's scenes), and the probes (instruction shuffled, unrelated or empty: the task is
+unchanged, only the words are not).
 
 Layout of OUT::
 
     config.json               the suites, axes, variants and evaluation settings; a resumed run must match
+                              them, except the episodes per task (more extend every axis's run)
     <suite>/<axis>/           `evaluate` run (axis "ori": no perturbation)
     robustness.json           per suite and in total: the metrics from success and from ESR
     report.md, robustness.png
@@ -162,12 +164,13 @@ def run_robustness(
     check_output(str(out), "dir", resume=resume, results=("config.json",))
     with output_lock(out):
         if resume and (out / "config.json").exists():
-            changed = changed_fields(read_json_file(out / "config.json", "robustness config"), record)
+            stored = read_json_file(out / "config.json", "robustness config")
+            changed = [c for c in changed_fields(stored, record) if c[0] != "evaluation.episodes"]
             if changed:
                 key, before, now = changed[0]
                 raise UserInputError(
                     f"{out / 'config.json'}: field {key!r} is {before!r} but this run has {now!r}; resume only "
-                    "with the same settings"
+                    "with the same settings (only episodes may change)"
                 )
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(out / "config.json", record)
@@ -176,9 +179,8 @@ def run_robustness(
         for suite, axis in tqdm(cells, desc="robustness", unit="run", disable=not progress):
             run_dir = out / suite / axis
             summary_path = run_dir / "summary.json"
-            if summary_path.exists():
-                summary = read_json_file(summary_path, "evaluation summary")
-            else:
+            summary = read_json_file(summary_path, "evaluation summary") if summary_path.exists() else None
+            if summary is None or summary["config"]["episodes"] != cfg.episodes:  # new, or resumed with more
                 summary = evaluate(
                     suite,
                     tasks,
