@@ -132,4 +132,18 @@ def test_refusals_before_any_work(policy, tmp_path, capsys):
     assert main([*args, "--mode", "base", "--axes", "semantic,task"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "leave the axis out (--axes semantic)" in err
-    assert not any((tmp_path / d).exists() for d in "abcd")
+    args[-1] = str(tmp_path / "e")  # JITI, the default mode, without a critic: refused by the first run
+    assert main([*args, "--axes", "object", "--episodes", "1", "--max-steps", "4"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "JITI mode 'jiti' needs a critic" in err
+    with pytest.raises(UserInputError, match=r"init states \[60\]: expected indices in 0..49"):
+        run_robustness(  # refused by the first run itself: what the robustness run wrote goes too
+            [SUITE],
+            policy,
+            None,
+            tmp_path / "f",
+            RobustnessConfig(axes=AXES),
+            tasks=[0],
+            **{**EVAL, "init_states": (60,)},
+        )
+    assert not any((tmp_path / d).exists() for d in "abcdef")

@@ -42,7 +42,7 @@ from base_suites.runtime.locks import output_lock
 from base_suites.runtime.outputs import check_output
 from elegant.evaluation.config import PRO_AXES, PROBE_AXES, EvalConfig, RobustnessConfig
 from elegant.evaluation.metrics import robustness_metrics
-from elegant.evaluation.runner import evaluate
+from elegant.evaluation.runner import build_agent, evaluate
 from elegant.policies.specs import describe_policy
 from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, percent, save_figure
@@ -146,11 +146,12 @@ def run_robustness(
     cfg = (eval_config or EvalConfig()).with_settings(**settings)
     if not suites or len(set(suites)) != len(suites):
         raise UserInputError(f"robustness: expected distinct suites, got {list(suites)}")
-    use_compute(compute or ComputeConfig(), "robustness")
+    device = use_compute(compute or ComputeConfig(), "robustness")
     workers = check_workers(workers)
     specs = config.perturbations()
     plan = {suite: {axis: _variant_tasks(suite, tasks, spec) for axis, spec in specs.items()} for suite in suites}
     _refuse_unreadable_axes(policy, critic, plan)
+    build_agent(policy, critic, cfg, str(device))  # before any run: a mode without its critic, an unreadable model
     out = Path(out)
     record = {
         "format": ROBUSTNESS_FORMAT,
@@ -172,33 +173,70 @@ def run_robustness(
                     f"{out / 'config.json'}: field {key!r} is {before!r} but this run has {now!r}; resume only "
                     "with the same settings (only episodes may change)"
                 )
+        created = not out.exists()
+        fresh = not (out / "config.json").exists()
         out.mkdir(parents=True, exist_ok=True)
         atomic_write_json(out / "config.json", record)
-        runs: dict[str, dict[str, dict[str, Any]]] = {}
-        cells = [(suite, axis) for suite in suites for axis in specs]
-        for suite, axis in tqdm(cells, desc="robustness", unit="run", disable=not progress):
-            run_dir = out / suite / axis
-            summary_path = run_dir / "summary.json"
-            summary = read_json_file(summary_path, "evaluation summary") if summary_path.exists() else None
-            if summary is None or summary["config"]["episodes"] != cfg.episodes:  # new, or resumed with more
-                summary = evaluate(
-                    suite,
-                    tasks,
-                    policy,
-                    critic,
-                    cfg.with_settings(perturbation=specs[axis] or None),
-                    out=run_dir,
-                    resume=True,
-                    workers=workers,
-                    compute=compute,
-                    progress=False,
-                )
-            runs.setdefault(suite, {})[axis] = summary
+        try:
+            runs = _run_cells(suites, specs, out, tasks, policy, critic, cfg, workers, compute, progress)
+        except UserInputError:
+            if fresh:  # refused before its first episode (e.g. a mode that needs a critic): leave nothing
+                _remove_refused_run(out, created)
+            raise
         result = {"config": record, "runs": {s: {a: str(out / s / a) for a in specs} for s in suites}, **_table(runs)}
         atomic_write_json(out / "robustness.json", result)
         _plot(result, out / "robustness.png")
         write_report(out / "report.md", _markdown(result))
         return result
+
+
+def _run_cells(
+    suites: Sequence[str],
+    specs: dict[str, str],
+    out: Path,
+    tasks: Sequence[int | str] | None,
+    policy: Any,
+    critic: Any,
+    cfg: EvalConfig,
+    workers: Workers,
+    compute: ComputeConfig | None,
+    progress: bool,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Each suite's original and axis runs (`evaluate`, resumed where OUT holds them); their summaries."""
+    runs: dict[str, dict[str, dict[str, Any]]] = {}
+    cells = [(suite, axis) for suite in suites for axis in specs]
+    for suite, axis in tqdm(cells, desc="robustness", unit="run", disable=not progress):
+        run_dir = out / suite / axis
+        summary_path = run_dir / "summary.json"
+        summary = read_json_file(summary_path, "evaluation summary") if summary_path.exists() else None
+        if summary is None or summary["config"]["episodes"] != cfg.episodes:  # new, or resumed with more
+            summary = evaluate(
+                suite,
+                tasks,
+                policy,
+                critic,
+                cfg.with_settings(perturbation=specs[axis] or None),
+                out=run_dir,
+                resume=True,
+                workers=workers,
+                compute=compute,
+                progress=progress,  # the run's episodes under the bar of runs
+            )
+        runs.setdefault(suite, {})[axis] = summary
+    return runs
+
+
+def _remove_refused_run(out: Path, created: bool) -> None:
+    """What a fresh run wrote before its first run refused (its config and empty axis directories; any
+    episode a run finished stays), so that the corrected command can use the same directory."""
+    if any(out.rglob("episodes.jsonl")):
+        return
+    (out / "config.json").unlink(missing_ok=True)
+    for directory in sorted((p for p in out.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
+        if not any(directory.iterdir()):
+            directory.rmdir()
+    if created and not any(out.iterdir()):
+        out.rmdir()
 
 
 def _cells(entry: dict[str, Any], axes: Sequence[str]) -> list[str]:

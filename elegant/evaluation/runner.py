@@ -278,7 +278,11 @@ def evaluate(
         try:
             total = len(indices) * int(cfg.episodes)
             with tqdm(
-                total=total, initial=total - len(jobs), desc=f"eval {cfg.mode}", unit="ep", disable=not progress
+                total=total,
+                initial=total - len(jobs),
+                desc=" ".join(filter(None, ("eval", cfg.mode, cfg.perturbation))),
+                unit="ep",
+                disable=not progress,
             ) as bar:
                 with run_jobs(make_worker, jobs, workers) as results:
                     for _, (episode, trace) in results:  # only this process writes: workers may be other machines
