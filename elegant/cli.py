@@ -546,8 +546,8 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--pretrained",
         metavar="POLICY_DIR",
-        help="start the first task from this policy's hidden layers and head, e.g. one trained on libero_90 "
-        "(LIBERO-100's protocol)",
+        help="start the first task from this policy, e.g. one trained on libero_90 (LIBERO-100's protocol): its "
+        "hidden layers and head, or all of it with --encoding goal-relative",
     )
     p.add_argument("--resume", action="store_true", help="skip finished stages and evaluations in OUT")
     _workers_arg(p)

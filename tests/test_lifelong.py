@@ -358,3 +358,31 @@ def test_pretrained_policy_starts_the_sequence_with_its_hidden_layers_and_head(d
     with pytest.raises(UserInputError, match="missing: no such policy directory"):
         run_lifelong(SUITE, TASKS, [demos], tmp_path / "x", pretrained=str(tmp_path / "missing"), **SETTINGS)
     assert not (tmp_path / "x").exists()
+
+
+def test_a_goal_relative_pretrained_policy_carries_over_whole_and_another_encoding_is_refused(demos, tmp_path):
+    """With the goal-relative input every layer fits: the first stage starts from all of the pretrained
+    network (trained on another task) and reads its input through the pretrained normalisation."""
+    from elegant.policies.bc_train import FineTuning, train_policy
+
+    pretrained = str(tmp_path / "pretrained")
+    train_policy(
+        [demos],
+        pretrained,
+        epochs=1,
+        chunk=1,
+        obs_noise=0.0,
+        encoding="goal-relative",
+        fine_tuning=FineTuning(tasks=["libero_object/1"]),
+        progress=False,
+    )
+    out = tmp_path / "goal"
+    result = run_lifelong(SUITE, TASKS, [demos], out, pretrained=pretrained, encoding="goal-relative", **SETTINGS)
+    source, start = weights(pretrained), weights(snapshot_dir(str(out / "stages" / "task_0"), 0))
+    assert source.keys() == start.keys() and same(source, start)
+    stage = json.loads((out / "stages" / "task_0" / "config.json").read_text())
+    assert stage["features"] == json.loads((tmp_path / "pretrained" / "config.json").read_text())["features"]
+    assert result["config"]["encoding"] == "goal-relative"
+    with pytest.raises(UserInputError, match="input encoding is goal-relative but this run has task-onehot"):
+        run_lifelong(SUITE, TASKS, [demos], tmp_path / "x", pretrained=pretrained, **SETTINGS)
+    assert not (tmp_path / "x").exists()

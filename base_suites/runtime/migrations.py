@@ -34,13 +34,15 @@ _ADDED_LATER: dict[str, dict[str, Any]] = {
     },
     # elegant lifelong's OUT/config.json: before the mixture size was a setting, policies had 5 components;
     # before the batch size was one, stages trained in batches of 256; before ER, EWC, PackNet and multitask,
-    # SeqL had no settings of its own; before pre-training, every run started from a fresh network
+    # SeqL had no settings of its own; before pre-training, every run started from a fresh network; before
+    # the goal-relative encoding, stage policies read the task one-hot
     "lifelong run": {
         "format": "libero-elegant-lifelong/1",
         "modes": 5,
         "batch_size": 256,
         "algorithm_settings": {},
         "pretrained": None,
+        "encoding": "task-onehot",
     },
     # train-policy's checkpoint fingerprint: before the success filter, observation noise, the lifelong
     # baselines' mechanisms and pre-training, and the goal-relative encoding

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
+from annotations.features import ENCODINGS, Encoding
 from base_suites.env import ObsMode
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.settings import index_list, nested, setting, with_overrides
@@ -216,6 +217,11 @@ class LifelongConfig:
     batch_size: int = setting(
         32, "samples per gradient step (LIBERO's 32; runs from before this option used 256, far fewer steps per epoch)"
     )
+    encoding: Encoding = setting(
+        "task-onehot",
+        "the stage policies' input: task-onehot (LIBERO's task embedding without semantics) or goal-relative "
+        "(the state read against the task's goal; a goal-relative --pretrained policy then carries over whole)",
+    )
     algo: LifelongAlgo = setting(
         "seql",
         "LIBERO's lifelong algorithm: sequential fine-tuning, experience replay, elastic weight consolidation, "
@@ -265,6 +271,8 @@ class LifelongConfig:
             raise UserInputError(f"lifelong: seed must be >= 0, got {self.seed}")
         if self.algo not in LIFELONG_ALGOS:
             raise unknown_choice("lifelong algorithm", self.algo, LIFELONG_ALGOS)
+        if self.encoding not in ENCODINGS:
+            raise unknown_choice("lifelong encoding", self.encoding, ENCODINGS)
         if self.er_memory < 1 or int(self.er_memory) != self.er_memory:
             raise UserInputError(f"lifelong: er_memory must be a positive integer, got {self.er_memory!r}")
         if self.packnet_epochs is not None and (

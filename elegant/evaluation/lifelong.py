@@ -156,12 +156,36 @@ def lifelong_inputs(
         "max_steps": cfg.max_steps,
         "modes": int(cfg.modes),
         "batch_size": int(cfg.batch_size),
+        "encoding": cfg.encoding,
         "pretrained": None,
     }
     if pretrained is not None:
         path = os.path.abspath(os.fspath(pretrained))
-        config["pretrained"] = {"path": path, "model_sha256": read_artifact(path)[2]["model_sha256"]}
+        _, features, artifact = read_artifact(path)
+        if features.encoder.kind != cfg.encoding:
+            raise UserInputError(
+                f"{path}: the pretrained policy's input encoding is {features.encoder.kind} but this run has "
+                f"{cfg.encoding} (--encoding {features.encoder.kind} to learn from it)"
+            )
+        config["pretrained"] = {"path": path, "model_sha256": artifact["model_sha256"]}
     return config, data
+
+
+def _stage_features(config: dict[str, Any], data: DemoSet) -> BCFeatures:
+    """The one input every stage policy reads: fitted over all K tasks' demos, or, from a goal-relative
+    pretrained policy, that policy's own (its normalisation is what its weights learned, and a goal-relative
+    input names no task, so every layer carries over)."""
+    policy = stage_policy_config(config)
+    pretrained = config.get("pretrained")
+    if pretrained is not None and config["encoding"] == "goal-relative":
+        features = read_artifact(pretrained["path"])[1]
+        if features.history != policy.history:
+            raise UserInputError(
+                f"{pretrained['path']}: input history is {features.history} states but lifelong stages read "
+                f"{policy.history}"
+            )
+        return features
+    return BCFeatures.fit(data, history=policy.history, min_std=policy.obs_min_std, encoding=config["encoding"])
 
 
 def _learn_and_measure(run: LifelongRun, algorithm: Sequential, k: int, C: np.ndarray, S: np.ndarray) -> int:
@@ -246,9 +270,10 @@ def run_lifelong(
     evaluation, seed, max_steps, the policy's mixture components. `workers`: processes running each
     evaluation's episodes (`elegant.evaluate`); `compute`: where the stages train and the evaluations
     score (`ComputeConfig`). `pretrained`: a policy directory (e.g. multitask-trained on libero_90) the first
-    stage starts from, LIBERO-100's protocol: its hidden layers and head carry over, while its input layer
-    and task conditioning, made for other tasks' states, start fresh. Writes OUT as the module docstring
-    describes and returns the content of OUT/lifelong.json.
+    stage starts from, LIBERO-100's protocol: with the task one-hot its hidden layers and head carry over,
+    while its input layer and task conditioning, made for other tasks' states, start fresh; with
+    `encoding="goal-relative"` (the pretrained policy's too) the whole network and its input carry over.
+    Writes OUT as the module docstring describes and returns the content of OUT/lifelong.json.
     """
     cfg = with_overrides(config or LifelongConfig(), settings, "lifelong")
     compute = compute or ComputeConfig()
@@ -256,8 +281,7 @@ def run_lifelong(
     workers = check_workers(workers)
     config, data = lifelong_inputs(suite, tasks, demo_paths, cfg, pretrained)
     paths, keys = [os.fspath(p) for p in demo_paths], config["task_keys"]
-    defaults = stage_policy_config(config)
-    features = BCFeatures.fit(data, history=defaults.history, min_std=defaults.obs_min_std)
+    features = _stage_features(config, data)
     out = Path(out)
     multitask = cfg.algo == "multitask"
     with output_lock(out):  # one writer per lifelong run directory

@@ -55,6 +55,7 @@ def stage_policy_config(config: dict[str, Any], epochs: int | None = None) -> BC
         seed=config["seed"],
         modes=config["modes"],
         batch_size=config["batch_size"],
+        encoding=config["encoding"],
         chunk=1,
         obs_noise=0.0,
     )

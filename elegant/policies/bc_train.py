@@ -189,8 +189,9 @@ def _start_from(net: BCNet, init: Init, model_spec: dict[str, Any], init_from: s
 
 def _transfer(net: BCNet, pretrained: Init) -> list[str]:
     """Copy into `net` every parameter of the pretrained network with the same name and shape; returns
-    their names. A policy over other tasks differs in its input layer and task conditioning (other state
-    layouts, another one-hot), which stay as initialised; the hidden layers and the head carry over."""
+    their names. A task-onehot policy over other tasks differs in its input layer and task conditioning
+    (other state layouts, another one-hot), which stay as initialised; the hidden layers and the head carry
+    over. Goal-relative policies share every shape: all of it carries over."""
     source = pretrained[0].state_dict()
     target = net.state_dict()
     copied = [k for k, v in source.items() if k in target and target[k].shape == v.shape]
