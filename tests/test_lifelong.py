@@ -385,4 +385,8 @@ def test_a_goal_relative_pretrained_policy_carries_over_whole_and_another_encodi
     assert result["config"]["encoding"] == "goal-relative"
     with pytest.raises(UserInputError, match="input encoding is goal-relative but this run has task-onehot"):
         run_lifelong(SUITE, TASKS, [demos], tmp_path / "x", pretrained=pretrained, **SETTINGS)
+    chunked = str(tmp_path / "chunked")  # a head of 8-step chunks would not carry over: refused, not cut off
+    train_policy([demos], chunked, epochs=1, encoding="goal-relative", progress=False)
+    with pytest.raises(UserInputError, match="model.chunk is 8 but lifelong stage policies have 1"):
+        run_lifelong(SUITE, TASKS, [demos], tmp_path / "x", pretrained=chunked, encoding="goal-relative", **SETTINGS)
     assert not (tmp_path / "x").exists()

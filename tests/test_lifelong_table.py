@@ -141,3 +141,15 @@ def test_table_refusals(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "table.json: exists" in err
     assert main(["lifelong-table", str(tmp_path / "seql"), "--out", str(tmp_path / "t"), "--overwrite"]) == 0
+
+
+def test_a_run_from_before_a_setting_tables_beside_a_new_one_as_it_ran(tmp_path):
+    """An old run's record lacks the settings added since (here the encoding and the batch size): it
+    compares as the run it was, so it tables beside a new run of those settings, not beside another."""
+    write_seeds(tmp_path / "old", "seql")
+    write_seeds(tmp_path / "new", "er", encoding="task-onehot", batch_size=256, pretrained=None, modes=5)
+    write_seeds(tmp_path / "goal", "ewc", encoding="goal-relative", batch_size=256, pretrained=None, modes=5)
+    table = lifelong_table([tmp_path / "old", tmp_path / "new"], tmp_path / "t")
+    assert [a["algorithm"] for a in table["algorithms"]] == ["seql", "er"]
+    with pytest.raises(UserInputError, match="its 'encoding' is 'goal-relative' but the first run's is 'task-onehot'"):
+        lifelong_table([tmp_path / "old", tmp_path / "goal"], tmp_path / "t2")

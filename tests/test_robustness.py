@@ -147,3 +147,15 @@ def test_refusals_before_any_work(policy, tmp_path, capsys):
             **{**EVAL, "init_states": (60,)},
         )
     assert not any((tmp_path / d).exists() for d in "abcdef")
+    (tmp_path / "g" / "mine").mkdir(parents=True)  # a directory of the user's: only what the run wrote goes
+    with pytest.raises(UserInputError, match=r"init states \[60\]"):
+        run_robustness(
+            [SUITE],
+            policy,
+            None,
+            tmp_path / "g",
+            RobustnessConfig(axes=AXES),
+            tasks=[0],
+            **{**EVAL, "init_states": (60,)},
+        )
+    assert sorted(p.name for p in (tmp_path / "g").iterdir()) == ["mine"]

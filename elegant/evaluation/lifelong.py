@@ -6,7 +6,8 @@ consolidation (EWC) or PackNet; or by multitask training on all K tasks at once,
 The protocol around them follows LIBERO's `Sequential.learn_one_task` and `compute_metric`:
 
 - The input covers all K tasks from the start: the task one-hot is over the K tasks, and each task's
-  normalisation statistics are fitted on that task's demos. This needs every task's demos up front (the
+  normalisation statistics are fitted on that task's demos (with `encoding="goal-relative"`: one set over
+  all K tasks' demos, or a goal-relative pretrained policy's own). This needs every task's demos up front (the
   user passes all demo files at once), which is what LIBERO does too, as its data are all on disk; the
   statistics describe observation ranges only, nothing a later task's training learns.
 - While learning task k, the network is evaluated on task k before any training on it (e = 0) and after
@@ -70,6 +71,7 @@ from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.lifelong_algos import STAGED_ALGORITHMS, LifelongRun, Sequential, stage_policy_config
 from elegant.evaluation.metrics import clamp_learning_curves, lifelong_metrics
 from elegant.policies.bc_artifact import read_artifact
+from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir
@@ -167,24 +169,46 @@ def lifelong_inputs(
                 f"{path}: the pretrained policy's input encoding is {features.encoder.kind} but this run has "
                 f"{cfg.encoding} (--encoding {features.encoder.kind} to learn from it)"
             )
+        if cfg.encoding == "goal-relative":
+            _refuse_partial_transfer(path, features, artifact["model"], stage_policy_config(config), data)
         config["pretrained"] = {"path": path, "model_sha256": artifact["model_sha256"]}
     return config, data
+
+
+def _refuse_partial_transfer(
+    path: str, features: BCFeatures, model: dict[str, Any], policy: BCConfig, data: DemoSet
+) -> None:
+    """A goal-relative pretrained policy carries over whole: refuse one whose network or input differs
+    from the stage policy's (e.g. trained with chunk 8), or that cannot read one of the run's demos."""
+    if features.history != policy.history:
+        raise UserInputError(
+            f"{path}: input history is {features.history} states but lifelong stages read {policy.history}"
+        )
+    expected = {
+        "hidden": list(policy.hidden),
+        "modes": policy.modes,
+        "min_std": policy.min_std,
+        "chunk": policy.chunk,
+        "task_dim": features.binary_dim if policy.task_film else 0,
+    }
+    for key, value in expected.items():
+        if model.get(key) != value:
+            raise UserInputError(
+                f"{path}: model.{key} is {model.get(key)!r} but lifelong stage policies have {value!r} "
+                "(train it with --chunk 1 and the stage's network)"
+            )
+    for episode in data.episodes:  # a goal the pretrained input cannot read is refused here, before OUT
+        features.context_of(episode)
 
 
 def _stage_features(config: dict[str, Any], data: DemoSet) -> BCFeatures:
     """The one input every stage policy reads: fitted over all K tasks' demos, or, from a goal-relative
     pretrained policy, that policy's own (its normalisation is what its weights learned, and a goal-relative
-    input names no task, so every layer carries over)."""
-    policy = stage_policy_config(config)
+    input names no task, so every layer carries over; `lifelong_inputs` checked that it fits)."""
     pretrained = config.get("pretrained")
     if pretrained is not None and config["encoding"] == "goal-relative":
-        features = read_artifact(pretrained["path"])[1]
-        if features.history != policy.history:
-            raise UserInputError(
-                f"{pretrained['path']}: input history is {features.history} states but lifelong stages read "
-                f"{policy.history}"
-            )
-        return features
+        return read_artifact(pretrained["path"])[1]
+    policy = stage_policy_config(config)
     return BCFeatures.fit(data, history=policy.history, min_std=policy.obs_min_std, encoding=config["encoding"])
 
 
@@ -372,6 +396,17 @@ def _plot_curves(C: np.ndarray, epochs: list[int], kept: list[int], labels: list
     return save_figure(fig, path)
 
 
+def _input_line(cfg: dict[str, Any]) -> str:
+    """How the stage policies read a state (report line): the encoding, its normalisation, the pre-training."""
+    pretrained = cfg.get("pretrained")
+    if cfg.get("encoding", "task-onehot") == "task-onehot":
+        line = "task one-hot over the run's tasks, each task's normalisation fitted on its own demos"
+        return line + ("" if pretrained is None else f"; hidden layers and head from {pretrained['path']}")
+    if pretrained is None:
+        return "goal-relative, one normalisation fitted on all the run's demos"
+    return f"goal-relative, the whole network and its normalisation from {pretrained['path']}"
+
+
 def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarray) -> None:
     """report.md with the metrics, S and C as tables (success / ESR), and the two plots."""
     cfg = result["config"]
@@ -393,7 +428,7 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
         f"- {cfg['epochs']} epochs per task, evaluated at epochs {', '.join(map(str, cfg['eval_epochs']))}; "
         f"{cfg['episodes']} episodes per evaluation; seed {cfg['seed']}; max steps "
         f"{cfg['max_steps'] or 'suite default'}",
-        f"- demos: {', '.join(f['path'] for f in cfg['data'])}; each task's normalisation is fitted on its own demos",
+        f"- demos: {', '.join(f['path'] for f in cfg['data'])}; input: {_input_line(cfg)}",
         f"- algorithm settings: {json.dumps(cfg['algorithm_settings']) if cfg['algorithm_settings'] else 'none'}",
         "- kept checkpoint per task (first best success, as LIBERO): epoch "
         f"{', '.join(map(str, result['kept_epochs']))}",

@@ -29,9 +29,10 @@ import numpy as np
 
 from base_suites.runtime.compute import ComputeConfig, use_compute
 from base_suites.runtime.errors import UserInputError
-from base_suites.runtime.io import atomic_write_json, read_json_file
+from base_suites.runtime.io import atomic_write_json, read_json_file, with_added_settings
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
+from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LIFELONG_ALGOS, LifelongConfig
@@ -200,7 +201,8 @@ def read_lifelong_result(path: str | os.PathLike) -> dict[str, Any]:
         summary = {"runs": [str(path)], **aggregate_seeds([read_json_file(path / "lifelong.json", "lifelong run")])}
     else:
         raise UserInputError(f"{path}: holds no finished lifelong run (lifelong.json or lifelong_seeds.json)")
-    return {"path": str(path), **summary}
+    config = with_added_settings(summary["config"], summary["config"], added_later("lifelong run"))
+    return {"path": str(path), **summary, "config": config}  # a run from before a setting compares as it ran
 
 
 def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *, overwrite: bool = False) -> dict:

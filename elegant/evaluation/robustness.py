@@ -180,8 +180,8 @@ def run_robustness(
         try:
             runs = _run_cells(suites, specs, out, tasks, policy, critic, cfg, workers, compute, progress)
         except UserInputError:
-            if fresh:  # refused before its first episode (e.g. a mode that needs a critic): leave nothing
-                _remove_refused_run(out, created)
+            if fresh:  # refused before its first episode (e.g. init states a suite lacks): leave nothing
+                _remove_refused_run(out, created, [out / suite / axis for suite in suites for axis in specs])
             raise
         result = {"config": record, "runs": {s: {a: str(out / s / a) for a in specs} for s in suites}, **_table(runs)}
         atomic_write_json(out / "robustness.json", result)
@@ -226,17 +226,16 @@ def _run_cells(
     return runs
 
 
-def _remove_refused_run(out: Path, created: bool) -> None:
-    """What a fresh run wrote before its first run refused (its config and empty axis directories; any
-    episode a run finished stays), so that the corrected command can use the same directory."""
-    if any(out.rglob("episodes.jsonl")):
+def _remove_refused_run(out: Path, created: bool, run_dirs: Sequence[Path]) -> None:
+    """What a fresh run wrote before its first run refused: its config and the empty directories of its
+    runs (`evaluate` removes what a refused run wrote inside them); nothing else, and nothing at all once
+    an episode finished, so that the corrected command can use the same directory."""
+    if any((d / "episodes.jsonl").exists() for d in run_dirs):
         return
     (out / "config.json").unlink(missing_ok=True)
-    for directory in sorted((p for p in out.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
-        if not any(directory.iterdir()):
+    for directory in [*run_dirs, *dict.fromkeys(d.parent for d in run_dirs), *([out] if created else [])]:
+        if directory.is_dir() and not directory.is_symlink() and not any(directory.iterdir()):
             directory.rmdir()
-    if created and not any(out.iterdir()):
-        out.rmdir()
 
 
 def _cells(entry: dict[str, Any], axes: Sequence[str]) -> list[str]:
