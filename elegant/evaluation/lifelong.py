@@ -74,7 +74,7 @@ from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
-from elegant.policies.bc_train import FineTuning, select_tasks, snapshot_dir
+from elegant.policies.bc_train import FineTuning, network_spec, select_tasks, snapshot_dir
 from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, percent, save_figure
 
@@ -184,14 +184,9 @@ def _refuse_partial_transfer(
         raise UserInputError(
             f"{path}: input history is {features.history} states but lifelong stages read {policy.history}"
         )
-    expected = {
-        "hidden": list(policy.hidden),
-        "modes": policy.modes,
-        "min_std": policy.min_std,
-        "chunk": policy.chunk,
-        "task_dim": features.binary_dim if policy.task_film else 0,
-    }
-    for key, value in expected.items():
+    expected = network_spec(features, policy)
+    for key in sorted(expected, key=lambda k: k != "chunk"):  # the chunk first: it also sets the head's width
+        value = expected[key]
         if model.get(key) != value:
             raise UserInputError(
                 f"{path}: model.{key} is {model.get(key)!r} but lifelong stage policies have {value!r} "
@@ -398,8 +393,8 @@ def _plot_curves(C: np.ndarray, epochs: list[int], kept: list[int], labels: list
 
 def _input_line(cfg: dict[str, Any]) -> str:
     """How the stage policies read a state (report line): the encoding, its normalisation, the pre-training."""
-    pretrained = cfg.get("pretrained")
-    if cfg.get("encoding", "task-onehot") == "task-onehot":
+    pretrained = cfg["pretrained"]
+    if cfg["encoding"] == "task-onehot":
         line = "task one-hot over the run's tasks, each task's normalisation fitted on its own demos"
         return line + ("" if pretrained is None else f"; hidden layers and head from {pretrained['path']}")
     if pretrained is None:

@@ -178,6 +178,19 @@ def _input_features(
     return features
 
 
+def network_spec(features: BCFeatures, cfg: BCConfig) -> dict[str, Any]:
+    """The network a run of `cfg` over the input `features` builds, as its artifact records it ("model")."""
+    return {
+        "input_dim": features.input_dim,
+        "hidden": list(cfg.hidden),
+        "action_dim": ACTION_DIM * cfg.chunk,
+        "modes": cfg.modes,
+        "min_std": cfg.min_std,
+        "chunk": cfg.chunk,
+        "task_dim": features.binary_dim if cfg.task_film else 0,
+    }
+
+
 def _start_from(net: BCNet, init: Init, model_spec: dict[str, Any], init_from: str) -> None:
     """Copy the init network's weights into `net`, refusing a network of another shape."""
     old = init[2]["model"]
@@ -298,15 +311,7 @@ def train_policy(
     features = _input_features(data, cfg, features, init, init_from)
     windows = _Windows(data, features, cfg.chunk)
     replay = None if tune.replay is None else _Windows(tune.replay, features, cfg.chunk)
-    model_spec = {
-        "input_dim": features.input_dim,
-        "hidden": list(cfg.hidden),
-        "action_dim": ACTION_DIM * cfg.chunk,
-        "modes": cfg.modes,
-        "min_std": cfg.min_std,
-        "chunk": cfg.chunk,
-        "task_dim": features.binary_dim if cfg.task_film else 0,
-    }
+    model_spec = network_spec(features, cfg)
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(cfg.seed)
