@@ -323,19 +323,30 @@ def test_the_table_script_runs_every_algorithm_and_tables_them(demos, tmp_path):
     import sys
 
     script = os.path.join(os.path.dirname(__file__), os.pardir, "scripts", "lifelong_table.sh")
+    elegant = {**os.environ, "ELEGANT": f"{sys.executable} -m elegant.cli"}
+
+    def table_script(out, *options, jobs="1"):
+        return subprocess.run(
+            ["bash", script, SUITE, demos, str(out), *options],
+            env={**elegant, "JOBS": jobs},
+            capture_output=True,
+            text=True,
+        )
+
     out = tmp_path / "all"
     options = ["--tasks", "0,1", "--epochs", "1", "--eval-every", "1", "--episodes", "1", "--max-steps", "5"]
-    done = subprocess.run(
-        ["bash", script, SUITE, demos, str(out), *options, "--packnet-epochs", "1"],
-        env={**os.environ, "ELEGANT": f"{sys.executable} -m elegant.cli"},
-        capture_output=True,
-        text=True,
-    )
+    done = table_script(out, *options, "--packnet-epochs", "1", jobs="2")  # two algorithms at a time
     assert done.returncode == 0, done.stderr[-2000:]
     table = json.loads((out / "table" / "table.json").read_text())
     assert [a["algorithm"] for a in table["algorithms"]] == ["seql", "er", "ewc", "packnet", "multitask"]
     assert table["config"]["epochs"] == 1 and table["config"]["task_keys"] == ["libero_object/0", "libero_object/1"]
     assert "| PackNet |" in (out / "table" / "table.md").read_text()
+    assert '"final_success"' in (out / "seql.log").read_text()  # each algorithm's own log
+    for jobs in ("1", "2"):  # a refusal leaves nothing behind, run one by one or side by side
+        refused = table_script(tmp_path / f"bad{jobs}", "--tasks", "0,9", jobs=jobs)
+        assert refused.returncode != 0 and "no demos of task libero_object/9" in refused.stderr
+        assert not (tmp_path / f"bad{jobs}").exists()
+    assert table_script(tmp_path / "x", jobs="two").stderr.startswith("JOBS: expected a whole number")
     usage = subprocess.run(["bash", script, SUITE], capture_output=True, text=True)
     assert usage.returncode == 2 and usage.stderr.startswith("usage:")
 
