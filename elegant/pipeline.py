@@ -63,6 +63,7 @@ def run_chain(
     markdown), runs ({mode: {suite: run directory}}), effects (`chain_effects` per suite). A second chain
     writing `out` at the same time is refused (`base_suites.runtime.locks`).
     """
+    config.validate()  # bad settings are refused before the chain directory or its lock exists
     compute = compute or ComputeConfig()
     use_compute(compute, "chain")  # a device that is not there is refused before the first stage runs
     with output_lock(out):
@@ -83,7 +84,6 @@ def _run_chain(
     from elegant.reporting.report import compare_runs
 
     cfg = config
-    cfg.validate()
     os.makedirs(out, exist_ok=True)
     check_chain_settings(out, cfg)
     tasks = list(cfg.tasks) if cfg.tasks is not None else None

@@ -49,6 +49,8 @@ def _case(name: str, line: str, expect: str = REFUSE) -> Case:
 
 EVAL = "eval --suite libero_object --tasks 0 --policy {policy} --critic {critic} --episodes 1 --max-steps 5"
 DEMOS = "demos --suite libero_object --tasks 0 --episodes 1"
+LIFELONG = "lifelong --suite libero_object {demos} --epochs 5 --episodes 1"
+ROBUST = "robustness --suite libero_object --tasks 0 --episodes 1 --max-steps 5"
 CASES = (
     # demos: settings
     Case("demos --tasks ''", ("demos", "--suite", "libero_object", "--tasks", "", "--out", "{s}/t.hdf5")),
@@ -118,7 +120,24 @@ CASES = (
     _case("import-libero a missing file", "import-libero {s}/missing.hdf5 --out {s}/i.hdf5"),
     _case("import-libero a text file", "import-libero {s}/note.txt --out {s}/i.hdf5"),
     _case("itc-spec task 99", "itc-spec libero_object 99"),
+    _case("tasks an unknown suite", "tasks libero_nope"),
     _case("report a missing run", "report {s}/missing"),
+    # lifelong and its table
+    _case("lifelong --tasks 0,0", f"{LIFELONG} --tasks 0,0 --out {{s}}/l"),
+    _case("lifelong --seeds 1,1", f"{LIFELONG} --tasks 0 --seeds 1,1 --out {{s}}/l"),
+    _case("lifelong --ewc-lambda nan", f"{LIFELONG} --tasks 0 --algo ewc --ewc-lambda nan --out {{s}}/l"),
+    _case("lifelong --packnet-prune 1.5", f"{LIFELONG} --tasks 0 --algo packnet --packnet-prune 1.5 --out {{s}}/l"),
+    _case("lifelong --pretrained missing", f"{LIFELONG} --tasks 0 --pretrained {{s}}/no --out {{s}}/l"),
+    _case("lifelong --tasks of no demos", f"{LIFELONG} --tasks 1 --out {{s}}/l"),
+    _case("lifelong --out a file", f"{LIFELONG} --tasks 0 --out {{s}}/note.txt"),
+    _case("lifelong-table a missing run", "lifelong-table {s}/missing --out {s}/t"),
+    # robustness, gate, rank-check, quickstart, serve-policy
+    _case("robustness --axes unknown", f"{ROBUST} --policy {{policy}} --axes bogus --out {{s}}/rb"),
+    _case("robustness --policy missing", f"{ROBUST} --policy {{s}}/no --out {{s}}/rb"),
+    _case("gate missing runs", "gate {s}/missing_base {s}/missing_jiti --out {s}/g.json"),
+    _case("rank-check rollouts missing", "rank-check --policy {policy} --critic {critic} {s}/missing.hdf5"),
+    _case("quickstart --task 99", "quickstart --task 99 --out {s}/q"),
+    _case("serve-policy a missing policy", "serve-policy {s}/no"),
 )
 
 

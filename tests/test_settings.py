@@ -155,6 +155,19 @@ def test_the_shipped_recipes_load_and_the_effect_recipe_is_the_default():
     assert (quick.tasks, quick.demos, quick.critic_rollouts, quick.evaluation.episodes) == ((0,), 100, 50, 25)
 
 
+def test_a_chain_refuses_a_task_or_suite_that_does_not_exist_before_it_writes(tmp_path):
+    from elegant.pipeline import run_chain
+
+    with pytest.raises(UserInputError, match="task index 50 out of range for suite .libero_10."):
+        run_chain(
+            str(tmp_path / "chain"),
+            with_overrides(ChainConfig(), {"suites": ("libero_90", "libero_10"), "tasks": (50,)}, "chain"),
+        )
+    with pytest.raises(UserInputError, match="unknown suite 'libero_nope'"):
+        with_overrides(ChainConfig(), {"suites": ("libero_nope",)}, "chain").validate()
+    assert not list(tmp_path.iterdir())  # neither the chain directory nor its lock
+
+
 def test_a_flat_chain_record_migrates_to_exactly_the_settings_that_chain_ran_with(tmp_path):
     """The quickstart's format-1 chain.json equals today's quickstart recipe, field by field, so such a
     chain directory continues; a record lacking later fields counts as running without them."""

@@ -1,4 +1,4 @@
-"""Jobs on Ray actors: `base_suites.runtime.jobs.run_jobs` on a Ray cluster (docs/design.md, scale-out).
+"""Jobs on Ray actors: `base_suites.runtime.jobs.run_jobs` on a Ray cluster (docs/design.md §3.5, backends).
 
 One actor per worker builds its worker once, from the factory put once in Ray's object store, and keeps
 its env and policy between jobs, as a local worker process does; it runs with one BLAS, OpenMP and torch

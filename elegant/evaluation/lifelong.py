@@ -66,6 +66,7 @@ from base_suites.runtime.io import atomic_write_json, changed_fields, read_json_
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
+from base_suites.runtime.outputs import check_output
 from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.lifelong_algos import STAGED_ALGORITHMS, LifelongRun, Sequential, stage_policy_config
@@ -108,8 +109,6 @@ def _task_indices(suite: str, tasks: Sequence[int | str]) -> list[int]:
 def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
     """Never mix runs: a new run needs an empty OUT, a resumed one the settings of OUT/config.json."""
     path = out / "config.json"
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"{out}: exists and is not a directory")
     if resume and path.exists():
         recorded = read_json_file(path, "lifelong config")
         if recorded.get("algorithm") == "sequential":  # SeqL's name before the other algorithms came
@@ -303,6 +302,7 @@ def run_lifelong(
     features = _stage_features(config, data)
     out = Path(out)
     multitask = cfg.algo == "multitask"
+    check_output(str(out), "dir", resume=resume)  # an unwritable OUT is refused before its lock is made
     with output_lock(out):  # one writer per lifelong run directory
         _prepare(out, config, resume)
         K, E = len(keys), len(config["eval_epochs"])
