@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-from base_suites import get_task
+from base_suites import task_specs
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.migrations import added_later
@@ -89,8 +89,7 @@ class ChainConfig:
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
         for suite in self.suites:  # an unknown suite or task is refused before the chain directory exists
-            for task in self.tasks if self.tasks is not None else (0,):
-                get_task(suite, task)
+            task_specs(suite, self.tasks)
         for name in ("demos", "critic_members"):
             if getattr(self, name) < 1:
                 raise UserInputError(f"chain {name} must be >= 1, got {getattr(self, name)}")
