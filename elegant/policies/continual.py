@@ -164,7 +164,8 @@ def consolidate(
 # ---- PackNet -----------------------------------------------------------------------------------------------
 
 
-def _linear_weights(net: nn.Module) -> dict[str, nn.Parameter]:
+def linear_weights(net: nn.Module) -> dict[str, nn.Parameter]:
+    """The weight of every Linear layer of `net` by parameter name: what PackNet's masks cover."""
     return {f"{name}.weight": m.weight for name, m in net.named_modules() if isinstance(m, nn.Linear)}
 
 
@@ -184,7 +185,7 @@ class WeightMasks:
     def bind(self, net: nn.Module, where: str) -> WeightMasks:
         """These masks for `net` (refusing a network whose Linear layers they do not fit), free weights
         handed to `task` when it claims them."""
-        weights = _linear_weights(net)
+        weights = linear_weights(net)
         owner = self.owner or {k: torch.zeros(w.shape, dtype=OWNER_DTYPE) for k, w in weights.items()}
         if set(weights) != set(owner) or any(weights[k].shape != v.shape for k, v in owner.items()):
             raise UserInputError(f"{where}: the PackNet masks do not fit this network's layers")
@@ -203,7 +204,7 @@ class WeightMasks:
         own, so the weights `task` owns train as if the others had no gradient."""
         params = dict(net.named_parameters())
         frozen = {name: p.detach().clone() for name, p in params.items()}
-        keep = {name: self.trainable(name).to(frozen[name].device) for name in _linear_weights(net)}
+        keep = {name: self.trainable(name).to(frozen[name].device) for name in linear_weights(net)}
 
         def restore() -> None:
             with torch.no_grad():
@@ -219,7 +220,7 @@ class WeightMasks:
             raise UserInputError(f"lifelong: packnet_prune must be in [0, 1), got {fraction!r}")
         owner = {}
         with torch.no_grad():
-            for name, weight in _linear_weights(net).items():
+            for name, weight in linear_weights(net).items():
                 mine = self.trainable(name)
                 values = weight.detach().cpu()[mine].abs()
                 rank = round(fraction * values.numel())
@@ -235,7 +236,7 @@ class WeightMasks:
         """Zero in `net` every weight that is free or owned by a task after `task`: the network task `task`
         is evaluated with."""
         with torch.no_grad():
-            for name, weight in _linear_weights(net).items():
+            for name, weight in linear_weights(net).items():
                 drop = (self.owner[name] == 0) | (self.owner[name] > task + 1)
                 weight[drop.to(weight.device)] = 0.0
 
