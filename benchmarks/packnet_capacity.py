@@ -23,6 +23,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -49,9 +50,9 @@ def demo_log_likelihood(policy_dir: str, data: DemoSet) -> float:
     return total / count
 
 
-def stage_fits(run: Path, data: DemoSet) -> list[float]:
-    """Task k's demo log-likelihood at the end of stage k (its last snapshot), for every stage of `run`."""
-    config = read_json_file(run / "config.json", "lifelong run config")
+def stage_fits(run: Path, config: dict[str, Any], data: DemoSet) -> list[float]:
+    """Task k's demo log-likelihood at the end of stage k (its last snapshot), for every stage of `run`
+    (whose recorded `config` is given)."""
     last = config["eval_epochs"][-1]
     return [
         demo_log_likelihood(snapshot_dir(str(run / "stages" / f"task_{k}"), last), select_tasks(data, [key]))
@@ -59,9 +60,11 @@ def stage_fits(run: Path, data: DemoSet) -> list[float]:
     ]
 
 
-def train_probe(run: Path, out: Path, task: str, fraction: float, variant: str, seed: int) -> str:
-    """Train `task` from `run`'s fresh network with a random `fraction` of the Linear weights trainable."""
-    config = read_json_file(run / "config.json", "lifelong run config")
+def train_probe(
+    run: Path, config: dict[str, Any], out: Path, task: str, fraction: float, variant: str, seed: int
+) -> str:
+    """Train `task` from `run`'s fresh network (`config`: its recorded settings) with a random `fraction`
+    of the Linear weights trainable."""
     probe = out / f"{variant}_{fraction}"
     if (probe / "config.json").exists():
         return str(probe)
@@ -120,12 +123,12 @@ def main() -> None:
     except UserInputError as exc:
         sys.exit(f"packnet_capacity: {exc}")
     prune = configs[0]["algorithm_settings"]["packnet_prune"]
-    fits = {f"{c['algorithm']}:{run}": stage_fits(run, data) for run, c in zip(runs, configs)}
+    fits = {f"{c['algorithm']}:{run}": stage_fits(run, c, data) for run, c in zip(runs, configs)}
     task_data = select_tasks(data, [keys[args.task]])
     probes: dict[str, dict[str, float]] = {variant: {} for variant in VARIANTS}
     for fraction in fractions:
         for variant in VARIANTS[:1] if fraction == 1.0 else VARIANTS:
-            probe = train_probe(args.packnet_run, args.out, keys[args.task], fraction, variant, args.seed)
+            probe = train_probe(args.packnet_run, configs[0], args.out, keys[args.task], fraction, variant, args.seed)
             probes[variant][str(fraction)] = demo_log_likelihood(probe, task_data)
     print("stage fits (task k's demos at the end of stage k):")
     for name, values in fits.items():
