@@ -14,7 +14,8 @@ Two measurements on finished `elegant lifelong` runs (one seed directory each, e
     python benchmarks/packnet_capacity.py runs/lifelong10_obj/packnet/seed_0 runs/lifelong10_obj/seql/seed_0 \
         --out runs/packnet_capacity [--task 5] [--fractions 1,0.75,0.42,0.24,0.1] [--seed 0]
 
-Trained probes go to OUT and are reused when rerun. Prints a table, then one JSON object on its last line.
+Trained probes go to OUT (each beside its start network and, for f < 1, the masks of the weights held fixed,
+owner 1) and are reused when rerun. Prints a table, then one JSON object on its last line.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import torch
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import read_json_file
-from elegant.evaluation.lifelong_algos import stage_policy_config
+from elegant.evaluation.lifelong_algos import PACKNET_MASKS_FILE, stage_policy_config
 from elegant.policies.bc_artifact import read_artifact, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_train import FineTuning, demo_batches, select_tasks, snapshot_dir, train_policy
@@ -79,7 +80,10 @@ def train_probe(
     start = out / f"{variant}_{fraction}_start"
     start.mkdir(parents=True, exist_ok=True)
     write_artifact(str(start), net, features, artifact["model"], artifact["training"])
-    masks = None if fraction == 1.0 else WeightMasks(owner, 1, claim_free=True)
+    masks = None
+    if fraction < 1.0:
+        WeightMasks(owner, 0).save(str(start / PACKNET_MASKS_FILE))  # which weights were held fixed
+        masks = WeightMasks(owner, 1, claim_free=True)
     train_policy(
         [d["path"] for d in config["data"]],
         str(probe),

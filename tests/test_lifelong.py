@@ -401,3 +401,28 @@ def test_a_goal_relative_pretrained_policy_carries_over_whole_and_another_encodi
     with pytest.raises(UserInputError, match="model.chunk is 8 but lifelong stage policies have 1"):
         run_lifelong(SUITE, TASKS, [demos], tmp_path / "x", pretrained=chunked, encoding="goal-relative", **SETTINGS)
     assert not (tmp_path / "x").exists()
+
+
+def test_packnet_capacity_benchmark_trains_its_probes_under_their_masks(demos, run, tmp_path):
+    import subprocess
+    import sys
+
+    packnet = tmp_path / "packnet" / "seed_0"
+    run_algorithm(demos, packnet, "packnet", packnet_epochs=1)
+    script = os.path.join(os.path.dirname(__file__), os.pardir, "benchmarks", "packnet_capacity.py")
+    command = [sys.executable, script, str(packnet), str(run[0]), "--out", str(tmp_path / "probes")]
+    command += ["--task", "1", "--fractions", "1,0.5"]
+    done = subprocess.run(command, capture_output=True, text=True, check=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    assert [len(v) for v in result["stage_log_likelihood"].values()] == [2, 2]  # two runs of two stages
+    assert set(result["probe_log_likelihood"]["sparse"]) == {"1.0", "0.5"}
+    assert set(result["probe_log_likelihood"]["packlike"]) == {"0.5"}  # no packlike probe of the dense net
+    assert all(np.isfinite(v) for p in result["probe_log_likelihood"].values() for v in p.values())
+    from elegant.policies.continual import WeightMasks
+
+    for variant in ("sparse", "packlike"):  # the weights held fixed do not move; some free ones do
+        probe = tmp_path / "probes" / f"{variant}_0.5"
+        start, trained = weights(f"{probe}_start"), weights(probe)
+        held = WeightMasks.load(str(tmp_path / "probes" / f"{variant}_0.5_start" / "packnet_masks.pt"), 0).owner
+        assert all(torch.equal(trained[n][o == 1], start[n][o == 1]) for n, o in held.items())
+        assert any(not torch.equal(trained[n][o == 0], start[n][o == 0]) for n, o in held.items())
