@@ -53,6 +53,7 @@ def fake_run(algo: str, seed: int, **config_changes) -> dict:
         "C_elegant": C[1].tolist(),
         "metrics": metrics(0),
         "metrics_elegant": metrics(1),
+        "kept_epochs": [10 * i for i in kept],  # the evaluations are every 10 epochs
     }
 
 
@@ -87,6 +88,27 @@ def test_one_seed_has_no_spread_and_multitask_has_no_nbt():
     mtl = aggregate_seeds([fake_run("multitask", s) for s in (0, 1)])
     assert mtl["metrics"]["nbt"] == {"mean": None, "std": None, "values": [None, None]}
     assert mtl["metrics"]["final_success"]["std"] is not None
+
+
+def test_stalled_stages_count_the_tasks_that_kept_their_starting_network(tmp_path):
+    results = [fake_run("packnet", s) for s in (0, 1, 2)]
+    for result, kept in zip(results, ([0, 10, 0], [20, 30, 10], [0, 0, 0])):
+        result["kept_epochs"] = kept
+    summary = aggregate_seeds(results)
+    assert summary["stalled_stages"]["values"] == [2, 0, 3]
+    assert summary["stalled_stages"]["mean"] == pytest.approx(5 / 3)
+    assert aggregate_seeds([fake_run("multitask", 0)])["stalled_stages"]["mean"] is None
+    # an aggregate written before the count existed: the table counts from its seed runs
+    directory = tmp_path / "packnet"
+    for seed, result in zip((0, 1, 2), results):
+        (directory / f"seed_{seed}").mkdir(parents=True)
+        (directory / f"seed_{seed}" / "lifelong.json").write_text(json.dumps(result))
+    before = {k: v for k, v in summary.items() if k != "stalled_stages"}
+    (directory / "lifelong_seeds.json").write_text(json.dumps({"runs": [], **before}))
+    table = lifelong_table([directory], tmp_path / "table")
+    assert table["algorithms"][0]["stalled_stages"]["values"] == [2, 0, 3]
+    row = next(line for line in table["markdown"].splitlines() if line.startswith("| PackNet"))
+    assert row.rstrip(" |").endswith("1.667 ± 1.528")
 
 
 def test_seeds_of_different_runs_are_refused():

@@ -7,14 +7,20 @@ statistical unit here: it draws the network's initialisation, the batches and th
 
 `lifelong_table` reads such directories (or single runs, as one seed each), one per algorithm, refuses
 runs that differ in anything but the algorithm and the seeds, and writes one table (rows: algorithms,
-columns: FWT, NBT, AUC and final success, from success and from ESR), one bar plot and the mean success
-matrices of every algorithm.
+columns: FWT, NBT, AUC and final success, from success and from ESR, and the stalled stages), one bar plot
+and the mean success matrices of every algorithm.
+
+A stalled stage kept epoch 0: no evaluation of its task beat the network the stage started from, so
+LIBERO's rule (the first best) keeps that network, and the task is not learned at all. The count tells a
+method that cannot learn a new task (EWC's penalty too stiff, PackNet short of free weights) from one that
+learns it and then forgets. After the first task, PackNet then prunes every weight the stalled task held
+(the free weights it claimed are still zero).
 
 OUT of `run_lifelong_seeds`::
 
     seeds.json                  the seeds; a resumed run must have the same
     seed_<s>/                   `run_lifelong` output with seed s
-    lifelong_seeds.json         per metric: mean, std and the per-seed values; mean S and C matrices
+    lifelong_seeds.json         per metric: mean, std and the per-seed values; stalled stages; mean S and C
     report.md, success_matrix.png
 """
 
@@ -71,6 +77,13 @@ def _mean_matrix(results: Sequence[dict[str, Any]], key: str) -> list[list[float
     return [[None if np.isnan(v) else float(v) for v in row] for row in mean]
 
 
+def stalled_stages(result: dict[str, Any]) -> int | None:
+    """How many stages of one run kept epoch 0 (module docstring); None for multitask, which has no stages."""
+    if result["config"]["algorithm"] == "multitask":
+        return None
+    return sum(epoch == 0 for epoch in result["kept_epochs"])
+
+
 def aggregate_seeds(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Mean and std over the runs of one algorithm that differ in their seed only."""
     configs = [{k: v for k, v in r["config"].items() if k != "seed"} for r in results]
@@ -80,6 +93,7 @@ def aggregate_seeds(results: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "config": configs[0],
         "seeds": [r["config"]["seed"] for r in results],
         **{source: {key: _spread([r[source][key] for r in results]) for key in METRIC_KEYS} for source, _ in SOURCES},
+        "stalled_stages": _spread([stalled_stages(r) for r in results]),
         **{f"{key}_mean": _mean_matrix(results, key) for key in ("S", "S_elegant", "C", "C_elegant")},
     }
 
@@ -184,6 +198,9 @@ def _write_seeds_report(out: Path, summary: dict[str, Any]) -> None:
         "",
         markdown_table(["metric", "from success", "from ESR", "per seed (success)"], rows),
         "",
+        f"Stalled stages (kept epoch 0: the task never learned), of {len(labels)}: "
+        + " / ".join("—" if v is None else f"{v:.0f}" for v in summary["stalled_stages"]["values"]),
+        "",
         "![mean success matrices](success_matrix.png)",
     ]
     write_report(out / "report.md", "\n".join(lines) + "\n")
@@ -201,6 +218,9 @@ def read_lifelong_result(path: str | os.PathLike) -> dict[str, Any]:
         summary = {"runs": [str(path)], **aggregate_seeds([read_json_file(path / "lifelong.json", "lifelong run")])}
     else:
         raise UserInputError(f"{path}: holds no finished lifelong run (lifelong.json or lifelong_seeds.json)")
+    if "stalled_stages" not in summary:  # an aggregate from before the count: its seed runs hold what it needs
+        seeds = [read_json_file(path / f"seed_{s}" / "lifelong.json", "lifelong run") for s in summary["seeds"]]
+        summary["stalled_stages"] = _spread([stalled_stages(r) for r in seeds])
     config = with_added_settings(summary["config"], summary["config"], added_later("lifelong run"))
     return {"path": str(path), **summary, "config": config}  # a run from before a setting compares as it ran
 
@@ -237,6 +257,7 @@ def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *,
                 "path": s["path"],
                 "algorithm_settings": s["config"]["algorithm_settings"],
                 **{source: s[source] for source, _ in SOURCES},
+                "stalled_stages": s["stalled_stages"],
                 "S_mean": s["S_mean"],
                 "S_elegant_mean": s["S_elegant_mean"],
             }
@@ -255,9 +276,17 @@ def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *,
 
 def _table_markdown(table: dict[str, Any]) -> str:
     cfg, algos = table["config"], table["algorithms"]
-    header = ["algorithm", *(f"{METRIC_LABELS[k]} {tag}" for tag in ("success", "ESR") for k in METRIC_KEYS)]
+    header = [
+        "algorithm",
+        *(f"{METRIC_LABELS[k]} {tag}" for tag in ("success", "ESR") for k in METRIC_KEYS),
+        "stalled stages (↓)",
+    ]
     rows = [
-        [ALGORITHM_NAMES[e["algorithm"]], *(_cell(e[source][key]) for source, _ in SOURCES for key in METRIC_KEYS)]
+        [
+            ALGORITHM_NAMES[e["algorithm"]],
+            *(_cell(e[source][key]) for source, _ in SOURCES for key in METRIC_KEYS),
+            _cell(e["stalled_stages"]),
+        ]
         for e in algos
     ]
     lines = [
@@ -271,6 +300,8 @@ def _table_markdown(table: dict[str, Any]) -> str:
         markdown_table(header, rows),
         "",
         "Multitask learns every task at once: no NBT or AUC; its FWT is the area under its learning curves.",
+        f"A stalled stage (of {len(cfg['task_keys'])}) kept epoch 0: no evaluation of its task beat the network it "
+        "started from, so LIBERO's first-best rule keeps that network and the task is never learned.",
         "",
         "![algorithms](algorithms.png)",
         "",
