@@ -8,6 +8,8 @@ of networks from one stage to the next, resume and the refusals are the real one
 import json
 import os
 import shutil
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -20,6 +22,7 @@ from elegant.cli import main
 from elegant.evaluation.lifelong import run_lifelong
 from elegant.evaluation.metrics import lifelong_metrics
 from elegant.policies.bc_train import snapshot_dir
+from elegant.policies.continual import WeightMasks
 
 pytestmark = pytest.mark.sim
 SUITE, TASKS = "libero_object", [0, 1]
@@ -222,8 +225,6 @@ def test_ewc_anchors_each_stage_at_the_network_kept_before_it(demos, tmp_path):
 
 
 def test_packnet_keeps_the_first_tasks_weights_and_evaluates_it_with_them(demos, tmp_path):
-    from elegant.policies.continual import WeightMasks
-
     out = tmp_path / "packnet"
     result = run_algorithm(demos, out, "packnet", packnet_epochs=2)
     assert result["config"]["algorithm_settings"] == {"packnet_prune": 0.75, "packnet_epochs": 2}
@@ -404,9 +405,6 @@ def test_a_goal_relative_pretrained_policy_carries_over_whole_and_another_encodi
 
 
 def test_packnet_capacity_benchmark_trains_its_probes_under_their_masks(demos, run, tmp_path):
-    import subprocess
-    import sys
-
     packnet = tmp_path / "packnet" / "seed_0"
     run_algorithm(demos, packnet, "packnet", packnet_epochs=1)
     script = os.path.join(os.path.dirname(__file__), os.pardir, "benchmarks", "packnet_capacity.py")
@@ -418,8 +416,6 @@ def test_packnet_capacity_benchmark_trains_its_probes_under_their_masks(demos, r
     assert set(result["probe_log_likelihood"]["sparse"]) == {"1.0", "0.5"}
     assert set(result["probe_log_likelihood"]["packlike"]) == {"0.5"}  # no packlike probe of the dense net
     assert all(np.isfinite(v) for p in result["probe_log_likelihood"].values() for v in p.values())
-    from elegant.policies.continual import WeightMasks
-
     for variant in ("sparse", "packlike"):  # the weights held fixed do not move; some free ones do
         probe = tmp_path / "probes" / f"{variant}_0.5"
         start, trained = weights(f"{probe}_start"), weights(probe)

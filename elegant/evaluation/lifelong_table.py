@@ -55,6 +55,10 @@ from elegant.reporting.report import markdown_table, save_figure
 SEEDS_FORMAT = "libero-elegant-lifelong-seeds/1"
 METRIC_LABELS = {"fwt": "FWT (↑)", "nbt": "NBT (↓)", "auc": "AUC (↑)", "final_success": "final (↑)"}
 SOURCES = (("metrics", "success"), ("metrics_elegant", "elegant success (ESR)"))
+STALLED_MEANING = (
+    "A stalled stage kept epoch 0: no evaluation of its task beat the network it started from, so LIBERO's "
+    "first-best rule keeps that network and the task is never learned."
+)
 
 
 def _spread(values: Sequence[float | None]) -> dict[str, Any]:
@@ -198,8 +202,9 @@ def _write_seeds_report(out: Path, summary: dict[str, Any]) -> None:
         "",
         markdown_table(["metric", "from success", "from ESR", "per seed (success)"], rows),
         "",
-        f"Stalled stages (kept epoch 0: the task never learned), of {len(labels)}: "
+        f"Stalled stages per seed, of {len(labels)}: "
         + " / ".join("—" if v is None else f"{v:.0f}" for v in summary["stalled_stages"]["values"]),
+        STALLED_MEANING,
         "",
         "![mean success matrices](success_matrix.png)",
     ]
@@ -300,8 +305,7 @@ def _table_markdown(table: dict[str, Any]) -> str:
         markdown_table(header, rows),
         "",
         "Multitask learns every task at once: no NBT or AUC; its FWT is the area under its learning curves.",
-        f"A stalled stage (of {len(cfg['task_keys'])}) kept epoch 0: no evaluation of its task beat the network it "
-        "started from, so LIBERO's first-best rule keeps that network and the task is never learned.",
+        f"Stalled stages are counted of {len(cfg['task_keys'])}. {STALLED_MEANING}",
         "",
         "![algorithms](algorithms.png)",
         "",
