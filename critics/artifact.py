@@ -26,6 +26,7 @@ from threadpoolctl import ThreadpoolController
 from annotations import FeatureEncoder, GoalContext, encoder_from_dict
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, atomic_write_json, library_versions, read_artifact_config
+from base_suites.stack import cpu_record
 from critics.networks import TwinQNetwork
 from critics.normalization import Normalization, clip_normalised_
 
@@ -321,6 +322,7 @@ def save_critic(
             "chunk": int(chunk),
             "training": dict(training),
             "versions": library_versions(),
+            "machine": cpu_record(),  # trained weights depend on the CPU's float kernels
         },
     )
     return out_dir

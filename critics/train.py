@@ -35,6 +35,7 @@ from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output, remove_results
 from base_suites.runtime.settings import with_overrides
+from base_suites.stack import cpu_record
 from critics.artifact import WEIGHTS_FILE, atomic_torch_save, save_critic
 from critics.config import TrainConfig
 from critics.data import TransitionData, load_transitions, make_replay_buffer
@@ -132,6 +133,7 @@ class _Run:
             "cuda_rng": torch.cuda.get_rng_state(self.device) if self.device.type == "cuda" else None,
             "device": self.device_kind,
             "versions": library_versions(),
+            "machine": cpu_record(),  # trained weights depend on the CPU's float kernels
         }
 
     def restore(self, state: dict[str, Any]) -> None:

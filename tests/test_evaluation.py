@@ -249,6 +249,21 @@ def test_a_run_resumes_only_on_the_kind_of_device_it_scored_on(runs):
         run(out, resume=True)
 
 
+def test_a_run_resumes_only_on_the_stack_it_ran_on(runs):
+    """config.json records the simulator stack and the CPU; a resume on another MuJoCo release or another
+    CPU vendor is refused in one line naming both values, before any episode runs."""
+    out = runs["root"] / "other_stack"
+    shutil.copytree(runs["root"] / "full", out)
+    config = json.loads((out / "config.json").read_text())
+    assert config["stack"]["mujoco"] and config["stack"]["render"] == "none" and config["stack"]["cpu_vendor"]
+    for field, value in (("mujoco", "3.14.0"), ("cpu_vendor", "SomeOtherVendor")):
+        (out / "config.json").write_text(json.dumps({**config, "stack": {**config["stack"], field: value}}))
+        before = (out / "episodes.jsonl").read_text()
+        with pytest.raises(UserInputError, match=f"config.json was measured with {field} '{value}' but this run with"):
+            run(out, resume=True, episodes=3)
+        assert (out / "episodes.jsonl").read_text() == before
+
+
 def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_path):
     """Each JITI setting has its own `elegant eval` flag and reaches `evaluate` under its own name; a flag
     left out is not passed, so the run keeps JITI's default."""

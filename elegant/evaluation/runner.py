@@ -35,7 +35,7 @@ import numpy as np
 from tqdm import tqdm
 
 from annotations.format import task_key
-from base_suites import UserInputError, make_env, task_specs
+from base_suites import UserInputError, check_same_stack, make_env, stack_record, task_specs
 from base_suites.rollout import ActionLog, run_episode
 from base_suites.runtime.compute import ComputeConfig, device_kind, use_compute
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file, with_added_settings
@@ -130,7 +130,8 @@ def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
         stored = with_added_settings(read_json_file(path, "run config"), config, added_later("eval run"))
         if isinstance(stored.get("jiti"), dict):  # runs once recorded every JITI setting, used or not
             stored["jiti"] = mode_record(stored["jiti"], stored.get("mode"))
-        changed = changed_fields(stored, config, ignore=("episodes",))
+        check_same_stack([(str(path), stored.get("stack")), ("this run", config["stack"])], "a resumed run")
+        changed = changed_fields(stored, config, ignore=("episodes", "stack"))
         if changed:  # another mode is named first: it explains the settings that differ with it
             key, before, now = next((c for c in changed if c[0] == "mode"), changed[0])
             raise UserInputError(
@@ -254,6 +255,8 @@ def evaluate(
         "perturbation": cfg.perturbation,
         "max_steps": cfg.max_steps,
         "obs": cfg.obs,
+        "render_quality": None if cfg.obs == "lowdim" else cfg.render_quality,
+        "stack": stack_record(render=None if cfg.obs == "lowdim" else cfg.render_quality),
         "init_states": chosen,
         "device": device_kind(device),
         **({} if cfg.replan_steps is None else {"replan_steps": cfg.replan_steps}),
@@ -341,6 +344,7 @@ class EpisodeRunner:
                 job.task_index,
                 seed=config["seed"],
                 obs=config["obs"],
+                render_quality=config["render_quality"] or "libero",
                 max_steps=config["max_steps"],
                 perturbation=config["perturbation"],
             )

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from base_suites import UserInputError
+from base_suites import UserInputError, check_same_stack
 from base_suites.runtime.io import atomic_write, read_json_file
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
@@ -192,6 +192,10 @@ def task_gate(
                     f"{path}: field {field!r} is {configs[mode].get(field)!r} but the base run {base_run} has "
                     f"{base_config.get(field)!r}; validate every run on the same starts with the same policy"
                 )
+    check_same_stack(
+        [(str(base_run), base_config.get("stack"))] + [(str(paths[m]), configs[m].get("stack")) for m in paths],
+        "a gate",
+    )
     agent = _agent(configs["jiti"])
     if always_run is not None:
         _refuse_other_agent(always_run, agent, configs["always"], f"the JITI run {jiti_run}'s", mode="always")

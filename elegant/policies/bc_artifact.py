@@ -18,6 +18,7 @@ import torch
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, library_versions, read_artifact_config
+from base_suites.stack import cpu_record
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
 from elegant.policies.protocol import ACTION_DIM
@@ -44,6 +45,7 @@ def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, 
         "features": features.to_dict(),
         "training": training,
         "versions": library_versions(),
+        "machine": cpu_record(),  # trained weights depend on the CPU's float kernels
         "model_sha256": hashlib.sha256(payload).hexdigest(),
     }
     atomic_write(os.path.join(out, CONFIG_FILE), json.dumps(config, indent=1).encode())

@@ -23,6 +23,7 @@ from annotations.format import CRITERIA, SEGMENT_LENGTH
 from base_suites.perturbations import parse_perturbations
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write
+from base_suites.stack import check_same_stack
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import paired_comparison, robustness_metrics, summarize
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
@@ -354,6 +355,7 @@ def compare_runs(
         raise UserInputError("report: --videos writes MP4s; give --out DIR for them")
     dirs = [Path(d) for d in run_dirs]
     summaries, records = zip(*(load_run(d) for d in dirs))
+    check_same_stack([(str(d), s["config"].get("stack")) for d, s in zip(dirs, summaries)], "a report")
     names = [d.name or str(d) for d in dirs]
     if len(set(names)) < len(names):
         names = [str(d) for d in dirs]
