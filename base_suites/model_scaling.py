@@ -55,7 +55,7 @@ def scale_subtree(model, data, root: int, factor: float) -> None:
         start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
         model.mesh_vert[start : start + count] *= s
         _scale_bvh(model, model.mesh_bvhadr[mesh], model.mesh_bvhnum[mesh], s)
-        if model.mesh_octnum[mesh] > 0:
+        if hasattr(model, "mesh_octnum") and model.mesh_octnum[mesh] > 0:  # 2.3 has no mesh octrees
             start, count = model.mesh_octadr[mesh], model.mesh_octnum[mesh]
             model.oct_aabb[start : start + count] *= s
     mujoco.mj_setConst(model, data)

@@ -6,9 +6,10 @@ wait: a bowl slides off the ramekin it was set on, bottles are thrown into the a
 floor. `check_start` names each such break for one start; `benchmarks/start_check.py` runs it over suites.
 
 A start breaks where, after the settle steps, a task object
-- breaks an `(On obj target)` of the BDDL's init: a target that is an object or a fixture (or a fixture's
-  region) by LIBERO's own predicate; a region of the table or floor by the object standing over it (its
-  origin within the region's half-extent plus `REGION_MARGIN`) and resting there (see below);
+- breaks an `(On obj target)` of the BDDL's init: a target that is an object or a fixture by LIBERO's own
+  predicate; a fixture's region by that predicate or, where it fails for an object at rest there, by the
+  object touching the fixture over the region; a region of the table or floor by the object standing over
+  it (its origin within the region's half-extent plus `REGION_MARGIN`) and resting there (see below);
 - has fallen off the table (its origin `FALL` below the table top; in the floor scenes there is nothing to
   fall from) or risen (`RISE` above its shipped height: thrown up, still in the air);
 - has tipped (its tilt changed by more than `TIP`, the alignment constraint's 20 deg);
@@ -87,11 +88,26 @@ def _broken_relations(env: Any) -> list[BrokenStart]:
         obj, target = relation[1], relation[2]
         region = regions.get(target)
         if region is not None and region["target"] not in scene:  # a region of the table or the floor
-            site = sim.region(target)
-            half = np.zeros(2) if site.half_size is None else np.asarray(site.half_size[:2], dtype=float)
-            off = np.abs(sim.position(obj)[:2] - site.position[:2]) - half
-            if (off > REGION_MARGIN).any():
-                broken.append(BrokenStart(obj, f"left {target} by {100 * float(off.max()):.1f} cm"))
-        elif not sim.predicate(("on", obj, target)):
+            off = _outside(sim, obj, target)
+            if off > REGION_MARGIN:
+                broken.append(BrokenStart(obj, f"left {target} by {100 * off:.1f} cm"))
+        elif sim.predicate(("on", obj, target)):
+            continue
+        elif region is None or not _resting_on(sim, obj, region["target"], target):
             broken.append(BrokenStart(obj, f"no longer on {target}"))
     return broken
+
+
+def _outside(sim: Any, obj: str, region: str) -> float:
+    """How far (m) the object's origin stands outside the region's footprint, along its worse axis."""
+    site = sim.region(region)
+    half = np.zeros(2) if site.half_size is None else np.asarray(site.half_size[:2], dtype=float)
+    return float((np.abs(sim.position(obj)[:2] - site.position[:2]) - half).max())
+
+
+def _resting_on(sim: Any, obj: str, fixture: str, region: str) -> bool:
+    """An object on a fixture's region stands when it touches the fixture over the region's footprint:
+    LIBERO's `On` test fails for some objects resting there (libero_90/35-37's bowl on the microwave top,
+    whose origin lies below the region's site), on every release alike."""
+    touching = any(c.involves(obj) and c.involves(fixture) for c in sim.contacts())
+    return touching and _outside(sim, obj, region) <= REGION_MARGIN

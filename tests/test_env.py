@@ -249,3 +249,26 @@ def test_vla_images_are_the_pixels_offscreen_render_env_renders():
         assert (images["fast"][key] != reference[key]).any(axis=-1).mean() > 0.01
     with pytest.raises(UserInputError, match="render quality"):
         make_env("libero_goal", 1, obs="vla", render_quality="shadowless")
+
+
+def test_vla_images_resized_with_padding_are_openpis():
+    """`vla_image_size=224`: both cameras as openpi's LIBERO client sends them, its own `resize_with_pad` of
+    the 256 px render; `resize_with_pad` pads a non-square image as openpi's does."""
+    image_tools = pytest.importorskip("openpi_client.image_tools")
+    from base_suites.image_resize import resize_with_pad
+
+    full = make_env("libero_object", 0, seed=0, obs="vla")
+    small = make_env("libero_object", 0, seed=0, obs="vla", vla_image_size=224)
+    try:
+        big, _ = full.reset(seed=1, options={"init_state": 2})
+        obs, _ = small.reset(seed=1, options={"init_state": 2})
+        for key in ("image", "wrist_image"):
+            assert obs[key].shape == (224, 224, 3) and small.observation_space[key].shape == (224, 224, 3)
+            np.testing.assert_array_equal(obs[key], image_tools.resize_with_pad(big[key], 224, 224))
+    finally:
+        full.close()
+        small.close()
+    wide = np.random.default_rng(0).integers(0, 256, size=(120, 200, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(resize_with_pad(wide, 96, 96), image_tools.resize_with_pad(wide, 96, 96))
+    with pytest.raises(UserInputError, match="vla_image_size resizes obs='vla' images"):
+        make_env("libero_object", 0, obs="rgb", vla_image_size=224)

@@ -24,9 +24,10 @@ def _render_quality_of(record: dict) -> str | None:
 _ADDED_LATER: dict[str, dict[str, Any]] = {
     # elegant eval's RUN/config.json: before chunking (one action per decision), before mode "random" (so its
     # rate had no effect), before a subset of init states, the minimum gain, the one-sided trigger, the
-    # override budget, the steered warm-up, the policy act and the render quality
+    # override budget, the steered warm-up, the policy act, the render quality and the VLA image size
     "eval run": {
         "render_quality": _render_quality_of,
+        "vla_image_size": None,
         "format": "libero-elegant-run/1",
         "init_states": None,
         "policy_act": "mode",

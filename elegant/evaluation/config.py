@@ -24,6 +24,15 @@ def _render_quality_setting() -> Any:
     )
 
 
+def _vla_image_size_setting() -> Any:
+    """`vla_image_size`, declared once for eval and rollouts."""
+    return setting(
+        None,
+        "with --obs vla: resize both images with padding to this side, as openpi's LIBERO client does (224) "
+        "before it sends them (default: LIBERO's 256 px render)",
+    )
+
+
 def _replan_steps_setting() -> Any:
     """`replan_steps`, declared once for eval and rollouts."""
     return setting(
@@ -46,6 +55,7 @@ class EvalConfig:
         "clients feed them, the 8-D state, the instruction); the critic judges the simulator state either way",
     )
     render_quality: RenderQuality = _render_quality_setting()
+    vla_image_size: int | None = _vla_image_size_setting()
     init_states: tuple[int, ...] | None = setting(
         None, "start only from these shipped init states, e.g. 25-49 (default: all)", parse=index_list
     )
@@ -124,6 +134,7 @@ class RolloutConfig:
         "lowdim", "what the policy observes (as in eval, but not rgb: the file stores the state it needs)"
     )
     render_quality: RenderQuality = _render_quality_setting()
+    vla_image_size: int | None = _vla_image_size_setting()
 
     def __post_init__(self) -> None:
         self.validate()

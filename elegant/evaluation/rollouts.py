@@ -182,6 +182,8 @@ def collect_rollouts(
     if cfg.obs != "lowdim":  # likewise
         recorded["obs"] = cfg.obs
         recorded["render_quality"] = cfg.render_quality
+    if cfg.vla_image_size is not None:  # likewise
+        recorded["vla_image_size"] = cfg.vla_image_size
     rollouts_of = Collection(
         suite,
         tasks,
@@ -192,6 +194,7 @@ def collect_rollouts(
         perturbation=cfg.perturbation,
         obs=cfg.obs,
         render_quality=cfg.render_quality,
+        vla_image_size=cfg.vla_image_size,
         desc="rollouts",
     )
     source_of = (lambda: source) if check_workers(workers).in_process else make_source

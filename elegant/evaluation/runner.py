@@ -256,6 +256,7 @@ def evaluate(
         "max_steps": cfg.max_steps,
         "obs": cfg.obs,
         "render_quality": None if cfg.obs == "lowdim" else cfg.render_quality,
+        "vla_image_size": cfg.vla_image_size,
         "stack": stack_record(render=None if cfg.obs == "lowdim" else cfg.render_quality),
         "init_states": chosen,
         "device": device_kind(device),
@@ -345,6 +346,7 @@ class EpisodeRunner:
                 seed=config["seed"],
                 obs=config["obs"],
                 render_quality=config["render_quality"] or "libero",
+                vla_image_size=config["vla_image_size"],
                 max_steps=config["max_steps"],
                 perturbation=config["perturbation"],
             )
