@@ -16,27 +16,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections import defaultdict
 
+from settle_drift import chosen_starts  # this folder's: the same --suites / --inits / --starts
 from tqdm import tqdm
 
 from base_suites import make_env, stack_record
 from base_suites.start_check import check_start
-from base_suites.suites import MAIN_SUITES, get_task, list_tasks
-
-
-def _starts(args) -> dict[tuple[str, int], list[int]]:
-    """(suite, task) -> init states to check, from `--starts` or from `--suites` and `--inits`."""
-    chosen: dict[tuple[str, int], list[int]] = defaultdict(list)
-    if args.starts:
-        for item in args.starts.split(","):
-            suite, task, init = item.rsplit("/", 2)
-            chosen[(suite, get_task(suite, int(task)).index)].append(int(init))
-        return chosen
-    for suite in args.suites.split(","):
-        for task in list_tasks(suite):
-            chosen[(suite, task.index)] = list(range(min(args.inits or task.n_init_states, task.n_init_states)))
-    return chosen
+from base_suites.suites import MAIN_SUITES
 
 
 def run(chosen: dict[tuple[str, int], list[int]], physics: str) -> dict:
@@ -83,7 +69,7 @@ def main() -> dict:
     parser.add_argument("--physics", default="fast", choices=("fast", "robosuite"))
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
-    result = run(_starts(args), args.physics)
+    result = run(chosen_starts(args.suites, args.inits, args.starts), args.physics)
     print(table(result))
     if args.out:
         with open(args.out, "w") as f:
