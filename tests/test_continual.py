@@ -3,6 +3,7 @@ Fisher information, PackNet's masks and pruning, and resume with each."""
 
 from __future__ import annotations
 
+import copy
 import os
 
 import pytest
@@ -19,6 +20,7 @@ from elegant.policies.continual import (
     WeightMasks,
     consolidate,
     fisher_information,
+    linear_weights,
     memory_digest,
     replay_memory,
 )
@@ -175,6 +177,79 @@ def test_packnet_masks_must_fit_the_network(first_task, tmp_path):
     (tmp_path / "bad.pt").write_bytes(b"not a torch file")
     with pytest.raises(UserInputError, match="unreadable PackNet masks"):
         WeightMasks.load(str(tmp_path / "bad.pt"), 1)
+
+
+def test_packnet_prunes_every_weight_at_the_cut_off_value_and_only_the_tasks_own():
+    """Per layer, the cut-off is the magnitude of the round(fraction * n)-th smallest of the task's n weights,
+    and every weight of the task at that magnitude is freed too (LIBERO's `le`): ties at the cut-off free
+    more than round(fraction * n). Weights of another task are never pruned, however small."""
+    net = torch.nn.Sequential(torch.nn.Linear(4, 2), torch.nn.ReLU(), torch.nn.Linear(2, 3))
+    with torch.no_grad():
+        net[0].weight.copy_(torch.tensor([[0.1, -0.3, 0.3, 0.05], [-0.3, 0.5, -0.7, 0.9]]))
+        net[2].weight.copy_(torch.tensor([[0.4, -0.2, 0.6], [0.8, -1.0, 0.3]]).T)
+    biases = {name: p.detach().clone() for name, p in net.named_parameters() if name.endswith("bias")}
+    # task 1 (owner 2) trains; the 0.05 of layer 0 belongs to task 0 (owner 1)
+    owner = {
+        "0.weight": torch.tensor([[2, 2, 2, 1], [2, 2, 2, 2]], dtype=torch.int16),
+        "2.weight": torch.full((3, 2), 2, dtype=torch.int16),
+    }
+    pruned = WeightMasks(owner, 1).prune(net, 0.3)
+    # layer 0: task 1's 7 weights, round(2.1) = 2: the cut-off is 0.3, held by three weights: 4 are freed
+    assert pruned.owner["0.weight"].tolist() == [[0, 0, 0, 1], [0, 2, 2, 2]]
+    # layer 2: 6 distinct magnitudes, round(1.8) = 2: exactly the two smallest (0.2 and 0.3) are freed
+    assert pruned.owner["2.weight"].T.tolist() == [[2, 0, 2], [2, 2, 0]]
+    torch.testing.assert_close(net[0].weight, torch.tensor([[0.0, 0.0, 0.0, 0.05], [0.0, 0.5, -0.7, 0.9]]))
+    torch.testing.assert_close(net[2].weight.T, torch.tensor([[0.4, 0.0, 0.6], [0.8, -1.0, 0.0]]))
+    assert all(torch.equal(p, biases[n]) for n, p in net.named_parameters() if n in biases)
+    assert owner["0.weight"][0, 0] == 2  # the masks it was given are unchanged
+
+
+def test_packnet_evaluates_each_earlier_task_with_the_weights_of_tasks_up_to_it(first_task, tmp_path):
+    """After task 2, task j (j < 2) is evaluated with a network holding only the weights of tasks 0..j: the
+    weights of the later tasks, and the free ones, are zero; the rest and every bias are the kept network's.
+    Its output is then that of the kept network with tasks j+1.. removed, and differs from task to task."""
+    from elegant.evaluation.lifelong_algos import PACKNET_MASKS_FILE, LifelongRun, PackNet
+    from elegant.policies.bc_artifact import write_artifact
+
+    net, features, artifact = read_artifact(first_task)
+    owner = {}
+    with torch.no_grad():  # weight i of each layer: free (0) or owned by task 0, 1 or 2 (1, 2, 3), in turn
+        for name, weight in linear_weights(net).items():
+            owner[name] = (torch.arange(weight.numel()) % 4).reshape(weight.shape).to(torch.int16)
+            weight[owner[name] == 0] = 0.0  # a free weight is zero (pruned)
+            weight.add_(torch.sign(weight) * (owner[name] == 3).float())  # task 2's weights: larger
+    kept = str(tmp_path / "kept")
+    os.makedirs(kept)
+    write_artifact(kept, net, features, artifact["model"], artifact["training"])
+    run = LifelongRun(tmp_path / "run", {}, [], None, features, lambda line: None, kept=[kept, kept, kept])
+    masks_path = PackNet().masks_path(run, 2)
+    assert masks_path.endswith(PACKNET_MASKS_FILE)
+    os.makedirs(os.path.dirname(masks_path))
+    WeightMasks(owner, 2).save(masks_path)
+
+    plans = PackNet().earlier(run, 2)
+    assert [(positions, str(run_dir)) for _, positions, run_dir in plans] == [
+        ([j], str(tmp_path / "run" / "evals" / "after_task_2" / f"task_{j}")) for j in (0, 1)
+    ]
+    x = torch.randn(5, features.input_dim, generator=torch.Generator().manual_seed(0))
+    outputs = []
+    for j, (policy, _, _) in enumerate(plans):
+        evaluated, _, facts = read_artifact(policy)
+        assert facts["training"]["packnet_weights_of_tasks"] == list(range(j + 1))
+        expected = {k: v.clone() for k, v in net.state_dict().items()}
+        for name, own in owner.items():
+            expected[name][(own == 0) | (own > j + 1)] = 0.0
+            assert (evaluated.state_dict()[name][own > j + 1] == 0).all(), (j, name)
+        assert all(torch.equal(evaluated.state_dict()[k], expected[k]) for k in expected), j
+        by_hand = copy.deepcopy(net)
+        by_hand.load_state_dict(expected)
+        with torch.no_grad():
+            output = torch.cat([t.flatten() for t in evaluated(x)])
+            torch.testing.assert_close(output, torch.cat([t.flatten() for t in by_hand(x)]), rtol=0, atol=0)
+        outputs.append(output)
+    with torch.no_grad():
+        full = torch.cat([t.flatten() for t in net(x)])
+    assert not torch.allclose(outputs[0], outputs[1]) and not torch.allclose(outputs[1], full)
 
 
 def test_resume_with_a_mechanism_gives_the_same_network_and_refuses_another(demos, first_task, tmp_path):

@@ -139,6 +139,41 @@ def test_resume_drops_a_cut_off_demo_and_stray_files_then_continues(tmp_path):
         np.testing.assert_array_equal(done.demo("demo_3").actions, synthetic_demo(3).actions)
 
 
+def test_a_fresh_run_over_an_interrupted_file_is_refused_and_keeps_its_demos(tmp_path, capsys):
+    """An interrupted writer's journal `<out>.partial` is part of the output: a command writing `out` without
+    --resume or --overwrite is refused in one line before any work, so it does not start afresh and delete
+    the finished demos; the journal stays byte for byte and --resume then completes the file."""
+    from base_suites.runtime.outputs import check_output
+    from elegant.cli import main
+
+    out = str(tmp_path / "demos.hdf5")
+    reference = write_demos(str(tmp_path / "reference.hdf5"))
+    writer = DemoWriter(out, {"env_args": {"env_name": "libero"}, "problem_info": {"n": 1}})
+    for i in range(2):
+        writer.append(synthetic_demo(i), [["state", 12]])
+    writer.abandon()  # interrupted after two demos; no `out` yet
+    journal = out + ".partial"
+
+    def journal_files() -> dict[str, bytes]:
+        return {name: open(os.path.join(journal, name), "rb").read() for name in sorted(os.listdir(journal))}
+
+    before = journal_files()
+    assert sorted(before) == ["demo_0.h5", "demo_1.h5", "header.h5"] and not os.path.exists(out)
+    refusal = f"{journal}: exists; pass --resume to continue it, --overwrite to replace it, or choose another path"
+    for command in (
+        ["demos", "--suite", "libero_object", "--tasks", "0", "--episodes", "1", "--out", out],
+        ["annotate", reference, "--out", out],
+    ):
+        assert main(command) == 2, command[0]
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and refusal in err, err
+    with pytest.raises(UserInputError, match="demos.hdf5.partial: exists; pass --resume"):
+        check_output(out, "file")  # the rule every file-writing command applies (demos, rollouts, annotate)
+    assert journal_files() == before and not os.path.exists(out)
+    write_demos(out, resume=True)  # the interrupted run's two demos, then the other two
+    assert file_contents(out) == file_contents(reference)
+
+
 def test_a_second_writer_of_the_same_file_is_refused_naming_the_first(tmp_path):
     out = str(tmp_path / "demos.hdf5")
     first = DemoWriter(out, {})

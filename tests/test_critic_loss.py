@@ -344,3 +344,51 @@ def test_cql_scores_each_states_own_policy_draws_at_that_state():
         assert policy[b, :N, 0].tolist() == [float(b)] * N  # drawn at s_b
         assert policy[b, N:, 0].tolist() == [float(BATCH + b)] * N  # drawn at s'_b
         assert policy[b, :N, 1].tolist() == policy[b, N:, 1].tolist() == [float(i) for i in range(1, N + 1)]
+
+
+class _RowCodedDensities(_RowCodedDraws):
+    """The row-coded draws, each with a log-density of its own: -(0.5 * stacked row + 0.25 * draw)."""
+
+    def rsample_and_log_prob(self, shape: tuple[int]) -> tuple[torch.Tensor, torch.Tensor]:
+        drawn, _ = super().rsample_and_log_prob(shape)
+        return drawn, _coded_log_density(drawn[..., 0], drawn[..., 1])
+
+
+def _coded_log_density(row: torch.Tensor, draw: torch.Tensor) -> torch.Tensor:
+    return -(0.5 * row + 0.25 * draw)
+
+
+def test_each_policy_draw_is_scored_with_its_own_log_density():
+    """Every policy-drawn action enters the CQL term as Q(s, a) - log pi(a), with the log-density of that very
+    action: the log-probabilities are permuted exactly as the actions are. With densities that differ by
+    state, any other pairing changes loss_cql."""
+    loss, batch = make_loss(), make_batch()
+    object.__setattr__(loss.actor_network, "distribution", lambda obs: _RowCodedDensities(len(obs)))
+    scored = []
+    real_q = loss._q
+
+    def recording_q(params, obs, actions):
+        scored.append(actions.detach().clone())
+        return real_q(params, obs, actions)
+
+    loss._q = recording_q
+    terms = loss.terms(batch)
+    policy = scored[0][:, 1 + N :]  # (B, 2N, A): the actions of terms.q_policy, each coded (row, draw)
+    own = _coded_log_density(policy[..., 0], policy[..., 1])
+    assert terms.policy_log_prob.shape == (BATCH, 2 * N)
+    torch.testing.assert_close(terms.policy_log_prob, own, rtol=0, atol=0)
+    assert len(set(own[:, 0].tolist())) == BATCH  # the densities differ from state to state
+    # loss_cql by hand: cql_weight * sum over critics of mean over states of logsumexp(...) - Q(s, a_data)
+    mc = batch["mc_return"].reshape(BATCH)
+    expected = 0.0
+    for c in range(2):
+        gaps = []
+        for b in range(BATCH):
+            values = [q - ACT * math.log(0.5) for q in terms.q_uniform[c, b].tolist()]
+            for j in range(2 * N):
+                values.append(max(terms.q_policy[c, b, j].item(), mc[b].item()) - own[b, j].item())
+            top = max(values)
+            ood = top + math.log(sum(math.exp(v - top) for v in values))
+            gaps.append(ood - terms.q_data[c, b].item())
+        expected += loss.cql_weight * sum(gaps) / BATCH
+    assert loss.cql_loss(batch, terms)[0].item() == pytest.approx(expected, rel=1e-5)
