@@ -323,11 +323,8 @@ class _RowCodedDraws:
         return drawn, torch.zeros(draws, self.rows)
 
 
-def test_cql_scores_each_states_own_policy_draws_at_that_state():
-    """Row b of the CQL term scores, at s_b, the N draws of pi(.|s_b) and then the N draws of pi(.|s'_b)
-    (Cal-QL's reference). A reshape that skips the permute would score other states' draws at s_b."""
-    loss, batch = make_loss(), make_batch()
-    object.__setattr__(loss.actor_network, "distribution", lambda obs: _RowCodedDraws(len(obs)))
+def _record_scored_actions(loss) -> list:
+    """Make `loss` keep a copy of every action batch its Q-function scores; returns the list it fills."""
     scored = []
     real_q = loss._q
 
@@ -336,6 +333,15 @@ def test_cql_scores_each_states_own_policy_draws_at_that_state():
         return real_q(params, obs, actions)
 
     loss._q = recording_q
+    return scored
+
+
+def test_cql_scores_each_states_own_policy_draws_at_that_state():
+    """Row b of the CQL term scores, at s_b, the N draws of pi(.|s_b) and then the N draws of pi(.|s'_b)
+    (Cal-QL's reference). A reshape that skips the permute would score other states' draws at s_b."""
+    loss, batch = make_loss(), make_batch()
+    object.__setattr__(loss.actor_network, "distribution", lambda obs: _RowCodedDraws(len(obs)))
+    scored = _record_scored_actions(loss)
     loss.terms(batch)
     actions = scored[0]  # (B, 1 + 3N, A): the data action, N uniform, 2N policy draws
     assert actions.shape == (BATCH, 1 + 3 * N, ACT)
@@ -364,14 +370,7 @@ def test_each_policy_draw_is_scored_with_its_own_log_density():
     state, any other pairing changes loss_cql."""
     loss, batch = make_loss(), make_batch()
     object.__setattr__(loss.actor_network, "distribution", lambda obs: _RowCodedDensities(len(obs)))
-    scored = []
-    real_q = loss._q
-
-    def recording_q(params, obs, actions):
-        scored.append(actions.detach().clone())
-        return real_q(params, obs, actions)
-
-    loss._q = recording_q
+    scored = _record_scored_actions(loss)
     terms = loss.terms(batch)
     policy = scored[0][:, 1 + N :]  # (B, 2N, A): the actions of terms.q_policy, each coded (row, draw)
     own = _coded_log_density(policy[..., 0], policy[..., 1])
