@@ -29,9 +29,9 @@ from base_suites.runtime.migrations import added_later
 from base_suites.runtime.settings import check_derived, index_list, load_config, nested, setting, with_overrides
 from critics.config import TrainConfig
 from elegant.evaluation.config import EvalConfig, RolloutConfig
+from elegant.intervention.modes import mode_names
 from elegant.policies.bc_config import BCConfig
 
-MODES = ("base", "always", "jiti")
 CHAIN_FORMAT = "libero-elegant-chain/2"
 RECIPES = Path(__file__).resolve().parent.parent / "configs"
 _BRANCH_POINTS = tuple(range(8, 129, 8))
@@ -83,9 +83,9 @@ class ChainConfig:
     def validate(self) -> None:
         """Refuse, before hours of demos, any setting a stage would refuse later, and settings that
         contradict each other."""
-        unknown = [m for m in self.modes if m not in MODES]
+        unknown = [m for m in self.modes if m not in mode_names()]
         if unknown or not self.modes:
-            raise UserInputError(f"chain modes {list(self.modes)}: expected some of {', '.join(MODES)}")
+            raise UserInputError(f"chain modes {list(self.modes)}: expected some of {', '.join(mode_names())}")
         if not self.suites:
             raise UserInputError("chain suites: give at least one suite")
         for suite in self.suites:  # an unknown suite or task is refused before the chain directory exists

@@ -80,6 +80,7 @@ def _run_chain(
     from elegant.evaluation.rollouts import collect_rollouts
     from elegant.evaluation.runner import evaluate
     from elegant.intervention.gate import write_gate
+    from elegant.intervention.modes import jiti_mode
     from elegant.policies import train_policy
     from elegant.reporting.report import compare_runs
 
@@ -129,7 +130,8 @@ def _run_chain(
             progress=progress,
             compute=compute,
         )
-    needs_critic = any(m != "base" for m in cfg.modes)  # base alone (the policy benchmark) only logs its scores
+    # a critic is trained if any mode needs one; base alone (the policy benchmark) only logs its scores
+    needs_critic = any(jiti_mode(m).needs_critic for m in cfg.modes)
     critic_data = list(annotated.values())
     rollout_suites = cfg.suites if needs_critic and cfg.critic_rollouts else ()
     for suite in rollout_suites:

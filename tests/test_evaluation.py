@@ -16,7 +16,7 @@ import pytest
 from base_suites import UserInputError
 from base_suites.runtime.jobs import Workers
 from elegant.evaluation.runner import episode_start, evaluate
-from elegant.intervention.config import MODE_SETTINGS
+from elegant.intervention.modes import jiti_mode
 
 pytestmark = pytest.mark.sim
 SUITE, TASK, STEPS = "libero_object", 0, 20
@@ -46,7 +46,7 @@ class PlungePolicy:
 
 
 def run(out, mode="jiti", episodes=2, resume=False, **kw):
-    settings = {**{k: v for k, v in JITI_SETTINGS.items() if k in MODE_SETTINGS[mode]}, **kw}
+    settings = {**{k: v for k, v in JITI_SETTINGS.items() if k in jiti_mode(mode).settings}, **kw}
     return evaluate(
         SUITE,
         [TASK],
@@ -214,7 +214,10 @@ def test_bad_arguments_are_user_errors(tmp_path):
         evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, init_states=[])
     with pytest.raises(UserInputError, match=r"JITI threshold \(--threshold\) does nothing in mode 'base'"):
         evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, threshold=3.0)
-    shapes = r"JITI n_candidates \(--candidates\) .* \(it shapes mode random, always, jiti\): leave it out"
+    shapes = (
+        r"JITI n_candidates \(--candidates\) .* "
+        r"\(it shapes mode always, consensus, jiti, likelihood, random\): leave it out"
+    )
     with pytest.raises(UserInputError, match=shapes):
         evaluate(SUITE, [TASK], PlungePolicy(), None, out=tmp_path, mode="base", episodes=1, n_candidates=8)
     assert not (tmp_path / "config.json").exists()

@@ -597,3 +597,78 @@ def test_a_deviation_equal_to_an_absolute_threshold_is_not_critical(trigger):
         rollout(jiti, 5)
         d = jiti.log[4]
         assert d.tau == 1.0 and d.dq == pytest.approx(abs(last - 5.0)) and d.intervened is critical
+
+
+class DensityPolicy(SamplingPolicy):
+    """SamplingPolicy with a log-density that peaks at a[0] = `peak` (it never sees the base plan's own)."""
+
+    def __init__(self, peak):
+        super().__init__()
+        self.peak, self.scored = peak, []
+
+    def log_prob_plans(self, obs, plans):
+        self.scored.append(np.array(plans))
+        return -((np.asarray(plans)[:, 0, 0] - self.peak) ** 2)
+
+
+def test_mode_likelihood_executes_the_policys_most_probable_eligible_candidate_without_a_critic():
+    policy = DensityPolicy(peak=0.05)  # candidate k has a[0] = k / 100: candidate 5 is the most probable
+    jiti = make_jiti(policy, None, mode="likelihood", n_candidates=16)
+    actions = rollout(jiti, 6)
+    assert all(d.intervened and d.chosen == 5 and d.q is None for d in jiti.log)
+    assert all(a[0] == pytest.approx(0.05) for a in actions) and policy.scored[0].shape == (16, 1, 7)
+    far = make_jiti(DensityPolicy(peak=0.12), None, mode="likelihood", trust_radius=0.1, n_candidates=16)
+    rollout(far, 3)
+    assert [d.chosen for d in far.log] == [10, 10, 10]  # the most probable within the radius, not candidate 12
+    at_base = make_jiti(DensityPolicy(peak=-0.5), None, mode="likelihood", n_candidates=16)
+    rollout(at_base, 3)
+    assert [d.chosen for d in at_base.log] == [0, 0, 0]  # the base plan when it is the most probable
+
+
+def test_mode_likelihood_refuses_a_policy_that_has_no_density_in_one_line():
+    with pytest.raises(UserInputError, match=r"mode 'likelihood' needs a base policy with log_prob_plans"):
+        make_jiti(SamplingPolicy(), None, mode="likelihood")
+
+
+def test_mode_consensus_executes_the_candidate_nearest_the_candidates_mean():
+    jiti = make_jiti(SamplingPolicy(), None, mode="consensus", n_candidates=15)
+    actions = rollout(jiti, 4)
+    # a[0] runs 0.00 .. 0.14 with the base plan 0.0 among them: the mean is candidate 7's 0.07
+    assert [d.chosen for d in jiti.log] == [7, 7, 7, 7] and actions[0][0] == pytest.approx(0.07)
+    near = make_jiti(SamplingPolicy(), None, mode="consensus", trust_radius=0.04, n_candidates=16)
+    rollout(near, 2)
+    assert [d.chosen for d in near.log] == [2, 2]  # the mean of the eligible 0..4 is candidate 2
+
+
+def test_a_mode_is_one_registered_object_that_jiti_and_its_config_use():
+    from elegant.intervention import modes
+    from elegant.intervention.selectors import Choice
+    from elegant.intervention.triggers import AtSteps
+
+    class LastCandidate:
+        def select(self, choice: Choice) -> int:
+            return len(choice.distance) - 1
+
+    mode = modes.JITIMode(
+        name="last-at-two",
+        help="the last candidate at step 2",
+        settings=("n_candidates",),
+        trigger=lambda config, steps: AtSteps([2]),
+        selector=lambda config: LastCandidate(),
+        describe=lambda record, candidates: "test mode",
+        needs_critic=False,
+    )
+    modes.register_mode(mode)
+    try:
+        jiti = make_jiti(SamplingPolicy(), None, JITIConfig(mode="last-at-two"), n_candidates=5)
+        rollout(jiti, 4)
+        assert [d.chosen for d in jiti.log] == [0, 0, 4, 0]
+        assert jiti.config()["n_candidates"] == 5 and "window" not in jiti.config()  # its settings, no others
+        with pytest.raises(UserInputError, match=r"window \(--window\) does nothing in mode 'last-at-two'"):
+            JITIConfig(mode="last-at-two").refuse_unused(["window"])
+        with pytest.raises(ValueError, match="registered twice"):
+            modes.register_mode(mode)
+    finally:
+        modes._REGISTRY.pop("last-at-two")
+    with pytest.raises(UserInputError, match="unknown JITI mode 'last-at-two'; expected one of: always, base"):
+        JITIConfig(mode="last-at-two")

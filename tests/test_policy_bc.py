@@ -498,3 +498,25 @@ def test_evaluation_agents_act_as_asked_in_every_worker(policy_dir):
     base = EvalConfig().with_settings(mode="base")
     assert build_agent(policy_dir, None, base).policy.act == "mode"
     assert build_agent(policy_dir, None, base.with_settings(policy_act="sample")).policy.act == "sample"
+
+
+def test_log_prob_plans_is_the_mixtures_density_and_does_not_advance_the_history(policy_dir):
+    from elegant.policies.bc_model import gmm_nll
+
+    key, rng = "libero_object/1", np.random.default_rng(0)
+    first, second = ({"state": rng.normal(size=5)} for _ in range(2))
+    policy = load_policy(policy_dir)
+    policy.reset(metadata(key))
+    mode = policy(first)
+    plans = np.concatenate([mode[None, None], policy.sample_plans(first, 7)])
+    log_prob = policy.log_prob_plans(first, plans)
+    with torch.inference_mode():
+        logits, means, stds = policy._distribution()
+        expected = -gmm_nll(logits, means, stds, torch.as_tensor(plans.reshape(8, 7), dtype=means.dtype))
+    np.testing.assert_allclose(log_prob, expected.double().numpy(), rtol=1e-6)
+    assert log_prob.shape == (8,) and np.isfinite(log_prob).all()
+    assert log_prob[0] > np.median(log_prob[1:])  # the mode's mean is likelier than a typical draw
+    with_scoring = policy(second)
+    policy.reset(metadata(key))
+    policy(first)
+    np.testing.assert_array_equal(policy(second), with_scoring)

@@ -36,11 +36,13 @@ def setting(
     metavar: str | None = None,
     factory: Callable[[], Any] | None = None,
     parse: Callable[[str], Any] | None = None,
+    choices: tuple[str, ...] | None = None,
 ) -> Any:
     """A config field with the one-line help the CLI shows; `flag` names its option where the field's name
     would not, `factory` builds a mutable default, `parse` reads the option's text where the type does not
-    say how (e.g. `index_list`)."""
-    metadata = {"help": help, "flag": flag, "metavar": metavar, "parse": parse}
+    say how (e.g. `index_list`), `choices` lists a `str` field's values where a registry, not a `Literal`,
+    holds them."""
+    metadata = {"help": help, "flag": flag, "metavar": metavar, "parse": parse, "choices": choices}
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
@@ -181,6 +183,7 @@ def _add_option(
         parser.add_argument(switch, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_text)
         return
     kind, choices = (f.metadata["parse"], None) if f.metadata.get("parse") else _option(annotation)
+    choices = f.metadata.get("choices") or choices
     parser.add_argument(
         flag or "--" + name,
         dest=dest,

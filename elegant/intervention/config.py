@@ -2,9 +2,9 @@
 
 The evaluation runner, the CLI and the chain take their JITI settings from these fields. The defaults are
 the recommended recipe (docs/design.md, JITI; configs/effect.yaml). Run configs record `JITIConfig.record()`:
-the mode and the settings its decisions depend on (`MODE_SETTINGS`), no others. A mode is a preset of a
-trigger (when to draw and re-rank candidates, `elegant.intervention.triggers`) and a selector (which
-candidate runs, `elegant.intervention.selectors`).
+the mode and the settings its decisions depend on (its `JITIMode.settings`), no others. A mode is one registered
+object (`elegant.intervention.modes`): its trigger (when to draw and re-rank candidates), its selector
+(which candidate runs), whether it needs a critic, and the settings it uses.
 """
 
 from __future__ import annotations
@@ -15,37 +15,30 @@ from typing import Any, Literal, get_args
 
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.settings import setting
+from elegant.intervention.modes import jiti_mode, mode_names
 
-Mode = Literal["jiti", "always", "base", "random"]
 ThresholdMode = Literal["absolute", "std"]
 TriggerName = Literal["deviation", "drop", "none"]
 Warmup = Literal["base", "steer"]
 
-MODES: tuple[str, ...] = get_args(Mode)
 THRESHOLD_MODES: tuple[str, ...] = get_args(ThresholdMode)
 TRIGGERS: tuple[str, ...] = get_args(TriggerName)
 WARMUPS: tuple[str, ...] = get_args(Warmup)
 DEFAULT_NOISE_SCALE = 0.1
 MAX_CANDIDATES = 4096  # far beyond any useful count; a typo of more would exhaust memory at the first decision
-_CANDIDATES = ("n_candidates", "noise_scale", "trust_radius")
-# The settings each mode's decisions depend on: a run records these (and is compared on them when it
-# resumes or meets a gate), so a base run neither carries nor is refused over settings it never used.
-MODE_SETTINGS: dict[str, tuple[str, ...]] = {
-    "base": (),
-    "random": (*_CANDIDATES, "random_rate"),
-    "always": (*_CANDIDATES, "min_gain"),
-    "jiti": ("window", "threshold", "threshold_mode", "trigger", "warmup", *_CANDIDATES, "min_gain", "max_overrides"),
-}
-
-
 @dataclass(frozen=True)
 class JITIConfig:
-    """How JITI decides. `mode`: "jiti" (re-rank at critical moments), "always" (at every decision: the
-    V-GPS baseline), "base" (never; the critic's scores are still logged), "random" (a random eligible
-    candidate at a `random_rate` of decisions, or at `random_steps`: the control, and the exploration of
-    recorded rollouts)."""
+    """How JITI decides. `mode` names a registered mode (`elegant.intervention.modes`): "jiti" (re-rank at
+    critical moments), "always" (at every decision: the V-GPS baseline), "base" (never; the critic's
+    scores are still logged), "random" (a random eligible candidate at a `random_rate` of decisions, or
+    at `random_steps`: the control, and the exploration of recorded rollouts), and the critic-free
+    controls "likelihood" and "consensus"."""
 
-    mode: Mode = setting("jiti", "jiti: re-rank at critical moments; always: at every decision; base: never")
+    mode: str = setting(
+        "jiti",
+        "; ".join(f"{name}: {jiti_mode(name).help}" for name in mode_names()),
+        choices=mode_names(),
+    )
     window: int = setting(4, "JITI's window: the number of past decisions whose scores set the reference m_t")
     threshold: float = setting(2.0, "tau: how far q_t may stray from m_t before JITI intervenes")
     threshold_mode: ThresholdMode = setting("std", "tau in Q units (absolute) or in the window's std (std)")
@@ -74,16 +67,16 @@ class JITIConfig:
 
     def validate(self) -> None:
         """Refuse any setting that is unknown, out of range or not a number, with one line naming it."""
+        mode = jiti_mode(self.mode)
         for name, choices in (
-            ("mode", MODES),
             ("threshold_mode", THRESHOLD_MODES),
             ("trigger", TRIGGERS),
             ("warmup", WARMUPS),
         ):
             if getattr(self, name) not in choices:
                 raise unknown_choice(f"JITI {name}", getattr(self, name), choices)
-        if self.mode == "jiti" and self.trigger == "none" and self.warmup != "steer":
-            raise UserInputError("JITI trigger 'none' never intervenes unless the warm-up is steered (warmup='steer')")
+        if mode.check is not None:
+            mode.check(self)
         if not int(self.window) >= 1:
             raise UserInputError(f"JITI window must be >= 1, got {self.window}")
         if not 2 <= int(self.n_candidates) <= MAX_CANDIDATES:
@@ -117,11 +110,11 @@ class JITIConfig:
         """Refuse, in one line, a setting named in `given` that this config's mode does not use: a
         threshold given to a base run would change nothing, silently."""
         for name in given:
-            if name != "mode" and name not in MODE_SETTINGS[self.mode]:
+            if name != "mode" and name not in jiti_mode(self.mode).settings:
                 flag = next(f.metadata.get("flag") for f in fields(self) if f.name == name) or "--" + name.replace(
                     "_", "-"
                 )
-                users = [mode for mode, names in MODE_SETTINGS.items() if name in names]
+                users = [mode for mode in mode_names() if name in jiti_mode(mode).settings]
                 raise UserInputError(
                     f"JITI {name} ({flag}) does nothing in mode {self.mode!r} (it shapes mode {', '.join(users)}): "
                     "leave it out"
@@ -133,7 +126,9 @@ def mode_record(record: Mapping[str, Any], mode: str | None = None) -> dict[str,
     not settings (the chunk, the policy adapter) stay. Records written before a run recorded only its
     mode's settings held every setting: this reads them as today's record of the same run."""
     mode = record.get("mode") if mode is None else mode
-    if mode not in MODE_SETTINGS:  # not a mode: kept whole, so the comparison names what differs
+    if mode not in mode_names():  # not a mode: kept whole, so the comparison names what differs
         return dict(record)
-    others = set(JITIConfig.settings()) - {"mode", *MODE_SETTINGS[mode]}
+    # a run records the settings its mode's decisions depend on (and is compared on them when it resumes or
+    # meets a gate), so a base run neither carries nor is refused over settings it never used
+    others = set(JITIConfig.settings()) - {"mode", *jiti_mode(mode).settings}
     return {k: v for k, v in record.items() if k not in others}

@@ -4,8 +4,8 @@
 base plan, q_t = Q(s_t, a_t), against the mean m_t of the last `window` scores; at a critical moment (the
 trigger fires) it draws N candidates from the base policy itself, the base plan kept as candidate 0, and
 executes the one the selector picks (the critic's argmax within the trust radius). Settings are one
-`JITIConfig`; a mode is a preset of a trigger (`elegant.intervention.triggers`) and a selector
-(`elegant.intervention.selectors`).
+`JITIConfig`; its mode is a registered object (`elegant.intervention.modes`) that builds the trigger and
+the selector.
 
 Contract, each for a reason:
 - The window holds the score of what was executed (q_t, or the chosen candidate's), so after a correction
@@ -35,8 +35,9 @@ import numpy as np
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.settings import with_overrides
 from elegant.intervention.config import JITIConfig
-from elegant.intervention.selectors import make_selector
-from elegant.intervention.triggers import Moment, make_trigger
+from elegant.intervention.modes import check_policy, jiti_mode
+from elegant.intervention.selectors import Choice
+from elegant.intervention.triggers import Moment
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import ACTION_DIM, ACTION_HIGH, ACTION_LOW, Observation, as_action, chunk_of
 
@@ -146,7 +147,7 @@ class JITI:
     config; keyword settings (`JITI(policy, critic, window=4, trigger="drop")`) override either. `seed`
     seeds candidate sampling and mode "random"'s choices (each episode re-seeds them through `reset`);
     `random_steps`: mode "random" explores at the decisions taken at these steps instead of at a rate.
-    The critic may be None in modes "base" and "random".
+    The critic may be None in the modes that need none ("base", "random" and the critic-free controls).
     """
 
     def __init__(
@@ -161,16 +162,17 @@ class JITI:
     ) -> None:
         cfg = config or JITIConfig()
         cfg = with_overrides(cfg, settings, "JITI") if settings else cfg
-        if critic is None and cfg.mode not in ("base", "random"):
-            raise UserInputError(
-                f"JITI mode {cfg.mode!r} needs a critic; only modes 'base' and 'random' run without one"
-            )
+        mode = jiti_mode(cfg.mode)
+        if critic is None and mode.needs_critic:
+            raise UserInputError(f"JITI mode {cfg.mode!r} needs a critic: give one, or a mode that runs without")
         if critic is not None and not callable(getattr(critic, "q", None)):
             raise UserInputError(
                 f"JITI critic: expected a critic object with q(state, actions) (e.g. critics.load(dir)), got {critic!r}"
             )
         self.settings = cfg
         self.policy = as_policy(policy, noise_scale=cfg.noise_scale, seed=seed)
+        check_policy(mode, self.policy)
+        self._mode = mode
         self.chunk = chunk_of(self.policy)
         if critic is not None:
             check_critic_chunk(critic, self.chunk)
@@ -178,13 +180,10 @@ class JITI:
         # an ensemble (`critics.CriticEnsemble`) scores with every member; a plain critic is one member
         self._member_q = getattr(critic, "member_q", None)
         self._random_steps = None if random_steps is None else frozenset(int(t) for t in random_steps)
-        self._trigger = make_trigger(cfg, self._random_steps)
-        self._selector = make_selector(cfg)
-        # mode "jiti" alone measures fluctuations over its window, steers its warm-up and keeps an override
-        # budget; other modes log no window statistics, since their runs record no window settings
-        self._uses_window = cfg.mode == "jiti"
-        self._steers_warmup = cfg.mode == "jiti" and cfg.warmup == "steer"
-        self._budget = cfg.max_overrides if cfg.mode == "jiti" else None
+        self._trigger = mode.trigger(cfg, self._random_steps)
+        self._selector = mode.selector(cfg)
+        # only a mode that measures fluctuations logs window statistics: other runs record no window settings
+        self._uses_window = mode.uses_window
         self._seed = seed
         self._rng = _choice_rng(seed)  # mode "random": when and what to choose
         self._scores: deque[float] = deque(maxlen=cfg.window)
@@ -228,7 +227,7 @@ class JITI:
         if seed is not None:
             self._rng = _choice_rng(seed)
         steps = self._random_steps if random_steps is None else frozenset(int(t) for t in random_steps)
-        self._trigger = make_trigger(self.settings, steps)
+        self._trigger = self._mode.trigger(self.settings, steps)
         if self.critic is not None:
             self.critic.bind(metadata)
         self._scores.clear()
@@ -264,9 +263,7 @@ class JITI:
             if mean is not None:
                 dq = abs(q - mean)
         if candidates is None:
-            moment = Moment(step, q, mean, tau, self._rng)
-            steered_warmup = self._steers_warmup and mean is None
-            if (self._trigger.fires(moment) or steered_warmup) and not self._budget_spent():
+            if self._trigger.fires(Moment(step, q, mean, tau, self._overrides, self._rng)):
                 candidates = self._candidates(obs, plan)
                 if self.critic is not None:  # the base plan's scores are known: only the alternatives are new
                     alternatives = self._score(state, candidates[1:])
@@ -275,7 +272,8 @@ class JITI:
         if candidates is not None:
             distance = plan_distance(candidates)
             scores_c = None if self.critic is None else member_scores.mean(axis=0)
-            chosen = self._selector.select(member_scores, distance, self._rng)
+            log_prob = lambda: self.policy.log_prob_plans(obs, candidates)  # noqa: E731 (asked for on demand)
+            chosen = self._selector.select(Choice(candidates, member_scores, distance, self._rng, log_prob))
             executed = candidates[chosen]
             self._overrides += chosen != 0
             chosen_q = None if scores_c is None else float(scores_c[chosen])
@@ -299,10 +297,6 @@ class JITI:
             )
         )
         return self._execute(executed)
-
-    def _budget_spent(self) -> bool:
-        """Whether this episode's overrides reached mode "jiti"'s `max_overrides`."""
-        return self._budget is not None and self._overrides >= self._budget
 
     def _execute(self, plan: np.ndarray) -> np.ndarray:
         self._queue.extend(plan[1:])

@@ -1,17 +1,19 @@
-"""Which candidate JITI executes once it re-ranks: the selectors, by name (docs/design.md, JITI).
+"""Which candidate JITI executes once it re-ranks: the selectors (docs/design.md, JITI).
 
-Candidate 0 is always the base plan. A selector sees every candidate's scores ((members, n): one row per
-critic of an ensemble, None without a critic), each candidate's distance from the base plan, and the
-run's seeded generator; it returns the index to execute.
+Candidate 0 is always the base plan. A selector sees one re-ranked decision (`Choice`): the candidate
+plans, their scores ((members, n): one row per critic of an ensemble, None without a critic), each
+candidate's distance from the base plan, the run's seeded generator and, on demand, the base policy's
+own log-density of each plan; it returns the index to execute. Each mode (`elegant.intervention.modes`)
+builds its selector.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-
-from elegant.intervention.config import JITIConfig
 
 
 def eligible_candidates(distance: np.ndarray, trust_radius: float | None) -> np.ndarray:
@@ -37,8 +39,20 @@ def choose_candidate(
     return int(np.argmax(np.where(agreed, members.mean(axis=0), -np.inf)))
 
 
+@dataclass(slots=True)
+class Choice:
+    """One re-ranked decision as a selector sees it. `log_prob()` asks the base policy for its log-density
+    of each plan (n,), only when a selector needs it (`JITIMode.policy_needs`)."""
+
+    plans: np.ndarray
+    scores: np.ndarray | None
+    distance: np.ndarray
+    rng: np.random.Generator
+    log_prob: Callable[[], np.ndarray]
+
+
 class Selector(Protocol):
-    def select(self, scores: np.ndarray | None, distance: np.ndarray, rng: np.random.Generator) -> int: ...
+    def select(self, choice: Choice) -> int: ...
 
 
 class CriticArgmax:
@@ -48,8 +62,8 @@ class CriticArgmax:
     def __init__(self, trust_radius: float | None, min_gain: float) -> None:
         self.trust_radius, self.min_gain = trust_radius, min_gain
 
-    def select(self, scores: np.ndarray | None, distance: np.ndarray, rng: np.random.Generator) -> int:
-        return choose_candidate(scores, distance, self.trust_radius, self.min_gain)
+    def select(self, choice: Choice) -> int:
+        return choose_candidate(choice.scores, choice.distance, self.trust_radius, self.min_gain)
 
 
 class RandomEligible:
@@ -58,16 +72,6 @@ class RandomEligible:
     def __init__(self, trust_radius: float | None) -> None:
         self.trust_radius = trust_radius
 
-    def select(self, scores: np.ndarray | None, distance: np.ndarray, rng: np.random.Generator) -> int:
-        eligible = np.flatnonzero(eligible_candidates(distance, self.trust_radius)[1:]) + 1
-        return int(rng.choice(eligible)) if len(eligible) else 0
-
-
-SELECTORS = {"critic": CriticArgmax, "random": RandomEligible}
-
-
-def make_selector(config: JITIConfig) -> Selector:
-    """Mode "random" picks at random; every other mode takes the critic's choice."""
-    if config.mode == "random":
-        return RandomEligible(config.trust_radius)
-    return CriticArgmax(config.trust_radius, config.min_gain)
+    def select(self, choice: Choice) -> int:
+        eligible = np.flatnonzero(eligible_candidates(choice.distance, self.trust_radius)[1:]) + 1
+        return int(choice.rng.choice(eligible)) if len(eligible) else 0

@@ -1,10 +1,9 @@
 """When JITI draws and re-ranks candidates: the triggers, by name (docs/design.md, JITI).
 
 A trigger sees one decision (`Moment`): the base plan's score q, the window's mean m and threshold tau
-(None while the window fills), the env step and the run's seeded generator. Modes are presets: "base"
-never fires, "always" fires at every decision, "jiti" fires at its critical moments, "random" at a
-random rate or at listed steps. Mode "jiti"'s steered warm-up and override budget wrap its trigger in
-`JITI` itself, since they apply to no other mode.
+(None while the window fills), the env step, the episode's overrides so far and the run's seeded
+generator. Each mode (`elegant.intervention.modes`) builds its trigger from these; mode "jiti"'s steered
+warm-up and override budget wrap its critical-moment trigger (`SteeredWarmup`, `OverrideBudget`).
 """
 
 from __future__ import annotations
@@ -14,8 +13,6 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-
-from elegant.intervention.config import JITIConfig
 
 
 @dataclass(slots=True)
@@ -27,6 +24,7 @@ class Moment:
     q: float | None
     mean: float | None
     tau: float | None
+    overrides: int
     rng: np.random.Generator
 
 
@@ -100,15 +98,29 @@ class AtSteps:
         return moment.step in self.steps
 
 
-CRITICAL_MOMENTS = {"deviation": Deviation, "drop": Drop, "none": Never}
+class SteeredWarmup:
+    """Fires while the window fills (no mean yet) as well as whenever `inner` does: the start of an episode,
+    where the policy commits to its approach and grasp, is a critical moment no fluctuation reveals."""
+
+    every_decision = False
+
+    def __init__(self, inner: Trigger) -> None:
+        self.inner = inner
+
+    def fires(self, moment: Moment) -> bool:
+        return self.inner.fires(moment) or moment.mean is None
 
 
-def make_trigger(config: JITIConfig, random_steps: Collection[int] | None = None) -> Trigger:
-    """The trigger of `config.mode`; in mode "random", `random_steps` (if given) replaces the random rate."""
-    if config.mode == "base":
-        return Never()
-    if config.mode == "always":
-        return Always()
-    if config.mode == "random":
-        return AtSteps(random_steps) if random_steps is not None else RandomRate(config.random_rate)
-    return CRITICAL_MOMENTS[config.trigger]()
+class OverrideBudget:
+    """`inner`, until the episode's overrides reach `limit`: then never again."""
+
+    every_decision = False
+
+    def __init__(self, inner: Trigger, limit: int) -> None:
+        self.inner, self.limit = inner, int(limit)
+
+    def fires(self, moment: Moment) -> bool:
+        return moment.overrides < self.limit and self.inner.fires(moment)
+
+
+CRITICAL_MOMENTS: dict[str, type[Trigger]] = {"deviation": Deviation, "drop": Drop, "none": Never}

@@ -12,8 +12,8 @@ How the policy acts (`act`, one of POLICY_ACTS):
   head's `low_eval_noise` on: the policy still picks among the ways of doing the task it learned, but
   executes each without the Gaussian jitter around it.
 The `sample` method draws candidates from the full mixture with another seeded generator: what JITI
-asks for at critical moments. Plain torch modules under `torch.inference_mode` keep one decision well under a
-millisecond on one CPU thread.
+asks for at critical moments; `log_prob_plans` scores candidates by the mixture's density. Plain torch
+modules under `torch.inference_mode` keep one decision well under a millisecond on one CPU thread.
 
 A policy trained with `chunk` > 1 decides a chunk of actions at once (`plan`), executes it open-loop and
 decides again when it is used up; between decisions it still sees every observation (`observe`), so its
@@ -34,7 +34,7 @@ from annotations import GoalContext
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_features import BCFeatures
-from elegant.policies.bc_model import BCNet, gmm_component_means, gmm_mode, gmm_sample
+from elegant.policies.bc_model import BCNet, gmm_component_means, gmm_mode, gmm_nll, gmm_sample
 from elegant.policies.protocol import (
     ACTION_DIM,
     DEFAULT_POLICY_ACT,
@@ -185,6 +185,16 @@ class BCPolicy(ExecutesPlans):
                 .numpy()
                 .reshape(n, self.chunk, ACTION_DIM)
             )
+
+    def log_prob_plans(self, obs: Observation, plans: np.ndarray) -> np.ndarray:
+        """The mixture's log-density (n,) of each of `plans` (n, chunk, 7) at the decision at `obs` (what
+        JITI's mode "likelihood" ranks candidates by); does not step the history again right after
+        `plan(obs)` or `__call__(obs)`."""
+        self._see(obs)
+        with torch.inference_mode():
+            logits, means, stds = self._distribution()
+            flat = torch.as_tensor(np.asarray(plans).reshape(len(plans), -1), dtype=means.dtype, device=self.device)
+            return (-gmm_nll(logits, means, stds, flat)).cpu().double().numpy()
 
     def sample(self, obs: Observation, n: int) -> np.ndarray:
         """n actions for this step: the first actions of n sampled plans (`sample_plans`)."""

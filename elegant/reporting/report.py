@@ -26,6 +26,7 @@ from base_suites.runtime.io import atomic_write
 from base_suites.stack import check_same_stack
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import paired_comparison, robustness_metrics, summarize
+from elegant.intervention.modes import jiti_mode, mode_names
 from elegant.policies.protocol import DEFAULT_POLICY_ACT
 from elegant.reporting.html import write_report
 
@@ -104,7 +105,7 @@ def plot_q_trace(trace: Mapping[str, Any], path: Path) -> Path:
             ax.axvspan(w * SEGMENT_LENGTH, (w + 1) * SEGMENT_LENGTH, color=colours.get(criterion), alpha=0.12, lw=0,
                        label=label)  # fmt: skip
     ax.plot(steps, q, lw=1.2, label="Q(s, base action)")
-    if trace.get("mode") == "jiti" and np.isfinite(mean).any():  # only JITI's trigger uses the window
+    if _uses_window(trace.get("mode")) and np.isfinite(mean).any():
         ax.plot(steps, mean, "--", lw=1, color="gray", label="window mean")
         ax.fill_between(steps, mean - tau, mean + tau, color="gray", alpha=0.15, lw=0, label="mean ± τ")
     hit = np.asarray(d["intervened"], dtype=bool)
@@ -164,27 +165,21 @@ def _traced_episode(run_dir: Path, records: Sequence[Mapping[str, Any]]) -> dict
     return trace if any(v is not None for v in trace["decisions"]["q"]) else None
 
 
+def _uses_window(mode: str | None) -> bool:
+    """Whether runs of `mode` measure fluctuations over a window (only those draw its mean and band)."""
+    return mode in mode_names() and jiti_mode(mode).uses_window
+
+
 def _settings_line(cfg: Mapping[str, Any]) -> str:
     """The settings that shaped a run of its mode, and only those (a base run used none of JITI's)."""
-    jiti, mode = cfg["jiti"], cfg["mode"]
-    if mode == "base":
-        return "JITI: not used (the base policy acts alone)"
+    jiti, mode = cfg["jiti"], jiti_mode(cfg["mode"])
+    if not mode.settings:
+        return mode.describe(jiti, "")
     source = cfg.get("candidate_source", f"{jiti['policy_adapter']}.sample")
     radius = jiti.get("trust_radius")
     candidates = f"N = {jiti['n_candidates']} candidates ({source}), trust radius {radius if radius else 'none'}"
     chunk = f", decisions every {jiti['chunk']} steps" if jiti.get("chunk", 1) > 1 else ""
-    if mode == "random":
-        return f"random control: a random candidate at {jiti['random_rate']} of decisions; {candidates}{chunk}"
-    gain = f"min gain {jiti.get('min_gain', 0.0)}"
-    if mode == "always":
-        return f"always: the critic re-ranks every decision; {candidates}; {gain}{chunk}"
-    budget = jiti.get("max_overrides")
-    choice = f"{gain}, override budget {budget if budget is not None else 'none'}"
-    trigger = (
-        f"trigger {jiti.get('trigger', 'deviation')}, warm-up {jiti.get('warmup', 'base')}, window {jiti['window']}, "
-        f"threshold {jiti['threshold']} ({jiti['threshold_mode']})"
-    )
-    return f"JITI: {trigger}; {candidates}; {choice}{chunk}"
+    return mode.describe(jiti, candidates) + chunk
 
 
 def write_run_report(
