@@ -26,6 +26,8 @@ TRIGGERS: tuple[str, ...] = get_args(TriggerName)
 WARMUPS: tuple[str, ...] = get_args(Warmup)
 DEFAULT_NOISE_SCALE = 0.1
 MAX_CANDIDATES = 4096  # far beyond any useful count; a typo of more would exhaust memory at the first decision
+
+
 @dataclass(frozen=True)
 class JITIConfig:
     """How JITI decides. `mode` names a registered mode (`elegant.intervention.modes`): "jiti" (re-rank at
