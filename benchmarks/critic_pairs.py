@@ -17,13 +17,10 @@ import time
 
 from continuation_pairs import continuation_pairs, pair_preference
 
+from base_suites.runtime.settings import index_list
 from critics import load
 
 TARGET = 0.8
-
-
-def _int_list(text: str) -> list[int]:
-    return [int(v) for v in text.split(",") if v.strip()]
 
 
 def _fraction(value: float | None) -> str:
@@ -47,7 +44,7 @@ def main() -> dict:
     parser.add_argument("--suite", required=True)
     parser.add_argument("--task", required=True, help="task index or name")
     parser.add_argument("--knobs", default="drop,tilt,misplace,collide")
-    parser.add_argument("--inits", type=_int_list, default=[0, 1, 2], help="comma-separated init-state indices")
+    parser.add_argument("--inits", type=index_list, default=(0, 1, 2), help="init-state indices, e.g. 0-2")
     parser.add_argument("--window", type=int, default=25, help="steps scored after the branching step")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-steps", type=int, help="episode length cap (default: the task's horizon)")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
+from dataclasses import replace
 
 import torch
 from torchrl.objectives.value.functional import reward2go
@@ -35,14 +36,14 @@ from critics import (
 )
 
 
-def mc_regression_reference(
-    paths: list[str], gamma: float | None, reward: str, steps: int, batch_size: int, hidden: list[int], seed: int
-) -> Critic:
+def mc_regression_reference(paths: list[str], config: TrainConfig) -> Critic:
     """A one-critic `TwinQNetwork` regressed onto the discounted return of each (state, action) of the
-    demos, wrapped as a run-time `Critic`. Demos cut off without success keep their return as it is (the
-    Cal-QL floor leaves those out; a regression needs a target for every transition)."""
+    demos (the critic's data, one action per transition), wrapped as a run-time `Critic`. Demos cut off
+    without success keep their return as it is (the Cal-QL floor leaves those out; a regression needs a
+    target for every transition)."""
+    steps, batch_size, hidden, seed = config.steps, config.batch_size, config.hidden, config.seed
     torch.manual_seed(seed)
-    data = load_transitions(paths, gamma=gamma, reward=reward)
+    data = load_transitions(paths, replace(config, chunk=1))
     td = data.transitions
     td["mc_target"] = reward2go(td["next", "reward"], td["next", "done"], data.gamma, time_dim=-2)
     network = TwinQNetwork(data.obs_dim, data.action_dim, hidden, n_critics=1)
@@ -78,9 +79,7 @@ def main() -> None:
         summary = train_critic(args.train, out, config, progress=not args.no_progress)
         result = {"train": summary, "heldout": evaluate_critic(out, args.heldout)}
     if args.reference:
-        reference = mc_regression_reference(
-            args.train, config.gamma, config.reward, config.steps, config.batch_size, config.hidden, config.seed
-        )
+        reference = mc_regression_reference(args.train, config)
         result["reference"] = evaluate_critic(reference, args.heldout)
     print(json.dumps(result))
 

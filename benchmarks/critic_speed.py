@@ -25,6 +25,7 @@ import json
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -37,7 +38,7 @@ from torchrl.modules import MLP, ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import CQLLoss, SoftUpdate
 
 from annotations import TaskFeatureEncoder
-from critics import CalQLLoss, Critic, Normalization, TanhGaussianActor, TwinQNetwork, make_replay_buffer
+from critics import CalQLLoss, Critic, Normalization, TanhGaussianActor, TrainConfig, TwinQNetwork, make_replay_buffer
 
 ACTION_DIM = 7
 
@@ -76,6 +77,14 @@ def random_transitions(n: int, obs_dim: int, seed: int) -> TensorDict:
         },
         batch_size=[n],
     )
+
+
+def our_loss(obs_dim: int, hidden: list[int], n_actions: int) -> CalQLLoss:
+    """Ours at the settings of TorchRL's `CQLLoss` (`stock_loss`): the policy's backup, TD alone, squared
+    error, gamma 0.99, so the two losses do the same work per step."""
+    cfg = replace(TrainConfig(), n_actions=n_actions, cql_weight=5.0, backup="policy", mc_weight=0.0, value_loss="mse")
+    actor, qvalue = TanhGaussianActor(obs_dim, ACTION_DIM, hidden), TwinQNetwork(obs_dim, ACTION_DIM, hidden)
+    return CalQLLoss.from_config(actor, qvalue, cfg, gamma=0.99)
 
 
 def stock_loss(obs_dim: int, hidden: list[int], n_actions: int) -> CQLLoss:
@@ -183,11 +192,7 @@ def gpu_figures(args: argparse.Namespace, data: TensorDict, step_flops: int, rou
     if not torch.cuda.is_available():
         return f"none: torch {torch.__version__} sees no GPU on this machine"
     device = "cuda"
-    loss = CalQLLoss(
-        TanhGaussianActor(args.obs_dim, ACTION_DIM, args.hidden),
-        TwinQNetwork(args.obs_dim, ACTION_DIM, args.hidden),
-        n_actions=args.n_actions,
-    ).to(device)
+    loss = our_loss(args.obs_dim, args.hidden, args.n_actions).to(device)
     step = gradient_step(loss, OnDevice(make_replay_buffer(data, args.batch, torch.Generator().manual_seed(0)), device))
     a, b = torch.randn(8192, 8192, device=device), torch.randn(8192, 8192, device=device)
 
@@ -232,11 +237,7 @@ def main() -> None:
     torch.manual_seed(args.seed)
 
     data = random_transitions(20_000, args.obs_dim, args.seed)
-    ours = CalQLLoss(
-        TanhGaussianActor(args.obs_dim, ACTION_DIM, args.hidden),
-        TwinQNetwork(args.obs_dim, ACTION_DIM, args.hidden),
-        n_actions=args.n_actions,
-    )
+    ours = our_loss(args.obs_dim, args.hidden, args.n_actions)
     stock = stock_loss(args.obs_dim, args.hidden, args.n_actions)
     steps = {
         name: gradient_step(loss, make_replay_buffer(data, args.batch, torch.Generator().manual_seed(args.seed)))

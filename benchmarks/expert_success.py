@@ -16,6 +16,7 @@ import numpy as np
 from base_suites import list_tasks, make_env
 from base_suites.experts import ScriptedExpert, parse_quality
 from base_suites.rollout import run_episode
+from base_suites.runtime.settings import index_list
 
 
 def run_task(suite: str, index: int, inits: int, quality, seed: int) -> dict:
@@ -43,7 +44,7 @@ def run_task(suite: str, index: int, inits: int, quality, seed: int) -> dict:
 def main() -> dict:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--suites", default="libero_object,libero_spatial,libero_goal,libero_10")
-    parser.add_argument("--tasks", default=None, help="comma-separated task indices (default: all)")
+    parser.add_argument("--tasks", type=index_list, help="task indices, e.g. 0-4 or 0,3 (default: all)")
     parser.add_argument("--inits", type=int, default=50)
     parser.add_argument("--quality", default="clean")
     parser.add_argument("--seed", type=int, default=0)
@@ -51,7 +52,7 @@ def main() -> dict:
     quality = parse_quality(args.quality)
     rows = []
     for suite in args.suites.split(","):
-        indices = [int(t) for t in args.tasks.split(",")] if args.tasks else [t.index for t in list_tasks(suite)]
+        indices = list(args.tasks) if args.tasks else [t.index for t in list_tasks(suite)]
         for index in indices:
             row = run_task(suite, index, args.inits, quality, args.seed)
             rows.append(row)

@@ -38,6 +38,7 @@ from base_suites import get_task, make_env
 from base_suites.rollout import StepObserver, run_episode
 from base_suites.runtime.errors import UserInputError
 from elegant.evaluation.runner import episode_start, open_critic, open_policy
+from elegant.intervention.config import JITIConfig
 from elegant.intervention.jiti import check_critic_chunk, decide, draw_candidates, plan_distance
 from elegant.intervention.selectors import choose_candidate, eligible_candidates
 from elegant.policies.adapters import as_policy
@@ -143,10 +144,11 @@ def _scores(critic, state: np.ndarray, candidates: np.ndarray) -> list[float]:
     return np.asarray(critic.q(np.asarray(state), flat), dtype=np.float64).round(4).tolist()
 
 
-def rescore_headroom(result: Mapping[str, Any], critic: Any, trust_radius: float | None) -> dict[str, Any]:
+def rescore_headroom(result: Mapping[str, Any], critic: Any, jiti: JITIConfig) -> dict[str, Any]:
     """Judge another critic on branches already run: every decision point's Q recomputed from its stored
     state and candidates, the outcomes kept. Seconds instead of the hours of branching, so critics can be
-    compared on the decisions that matter, with the simulator's own verdicts as ground truth."""
+    compared on the decisions that matter, with the simulator's own verdicts as ground truth; `jiti` says
+    how the critic chooses (its trust radius and minimum gain)."""
     if "suite" not in result or any("candidates" not in p for e in result["episodes"] for p in e["points"]):
         raise UserInputError(
             "rescore: this headroom result stores no states and candidates (it was written before they were kept); "
@@ -168,11 +170,12 @@ def rescore_headroom(result: Mapping[str, Any], critic: Any, trust_radius: float
         }
         for e in result["episodes"]
     ]
-    return {**result, "episodes": episodes, "summary": summarize_headroom(episodes, trust_radius)}
+    return {**result, "episodes": episodes, "summary": summarize_headroom(episodes, jiti)}
 
 
-def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float | None) -> dict[str, Any]:
-    """Rates over decision points (see the module docstring); None where no point qualifies."""
+def summarize_headroom(episodes: Sequence[dict[str, Any]], jiti: JITIConfig) -> dict[str, Any]:
+    """Rates over decision points (see the module docstring), the critic choosing as `jiti` says (its trust
+    radius and minimum gain); None where no point qualifies."""
     from critics.quality import auroc as ranking_auroc  # P(Q of an elegant outcome > Q of another), ties half
 
     def rate(values: list[float]) -> float | None:
@@ -185,8 +188,8 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
         for point in episode["points"]:
             elegant = np.asarray(point["elegant"], dtype=bool)
             q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
-            eligible = eligible_candidates(distance, trust_radius)
-            chosen = choose_candidate(q, distance, trust_radius)
+            eligible = eligible_candidates(distance, jiti.trust_radius)
+            chosen = choose_candidate(q, distance, jiti.trust_radius, jiti.min_gain)
             matters.append(float(elegant.any() != elegant.all()))
             if elegant[eligible].any() and not elegant[eligible].all():
                 auroc.append(ranking_auroc(q[eligible & elegant], q[eligible & ~elegant]))
@@ -216,7 +219,7 @@ def summarize_headroom(episodes: Sequence[dict[str, Any]], trust_radius: float |
         # spread of the per-point AUROCs over sqrt(points): with the 20-odd points a task's branches give,
         # critics 0.1 apart may not differ
         "outcome_auroc_se": float(np.std(auroc, ddof=1) / np.sqrt(len(auroc))) if len(auroc) > 1 else None,
-        "trust_radius": trust_radius,
+        "trust_radius": jiti.trust_radius,
     }
 
 
@@ -230,23 +233,22 @@ def intervention_headroom(
     seed: int = 0,
     every: int = 15,
     first: int = 10,
-    n_candidates: int = 16,
-    trust_radius: float | None = None,
+    jiti: JITIConfig,
     max_steps: int | None = None,
     init_states: Sequence[int] | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Branch the starts of evaluation episodes `episodes` (indices, as `elegant eval --seed seed
     --init-states ...` numbers them) of one task; return {"summary": ..., "episodes": [...]}. `policy`
-    and `critic` are directories or objects."""
+    and `critic` are directories or objects; `jiti` says how many candidates are drawn and how the critic
+    chooses among them."""
     from tqdm import tqdm
 
     from itc import ITCMonitor
 
-    if not episodes or min(episodes) < 0 or every < 1 or first < 0 or n_candidates < 2:
+    if not episodes or min(episodes) < 0 or every < 1 or first < 0:
         raise UserInputError(
-            f"headroom needs episode indices >= 0, every >= 1, first >= 0, n_candidates >= 2; got {list(episodes)}, "
-            f"{every}, {first}, {n_candidates}"
+            f"headroom needs episode indices >= 0, every >= 1, first >= 0; got {list(episodes)}, {every}, {first}"
         )
     base = as_policy(open_policy(policy), seed=seed)
     chunk = chunk_of(base)
@@ -275,7 +277,7 @@ def intervention_headroom(
                     reset_seed,
                     every=every,
                     first=first,
-                    n_candidates=n_candidates,
+                    n_candidates=jiti.n_candidates,
                 )
             )
     finally:
@@ -284,7 +286,7 @@ def intervention_headroom(
         "suite": suite,
         "task": spec.index,
         "chunk": chunk,
-        "summary": summarize_headroom(results, trust_radius),
+        "summary": summarize_headroom(results, jiti),
         "episodes": results,
     }
 
@@ -293,7 +295,7 @@ _ELEGANT, _ELEGANT_FAR = (0.20, 0.65, 0.30), (0.70, 0.88, 0.72)
 _PLAIN, _PLAIN_FAR = (0.72, 0.72, 0.72), (0.93, 0.93, 0.93)
 
 
-def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: Path) -> Path:
+def plot_headroom(result: Mapping[str, Any], jiti: JITIConfig, path: Path) -> Path:
     """The intervention-headroom branches (`intervention_headroom`): one panel per start, one row per decision
     point, its candidates ordered by the critic's Q (best on the left); green where executing the
     candidate led to an elegant success, pale where it lies outside the trust radius; the base action
@@ -313,7 +315,7 @@ def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: P
             q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
             order = np.argsort(-q, kind="stable")
             column = np.argsort(order)  # candidate k is drawn in column[k]
-            near = eligible_candidates(distance, trust_radius)
+            near = eligible_candidates(distance, jiti.trust_radius)
             for col, k in enumerate(order):
                 image[row, col] = (
                     (_ELEGANT if near[k] else _ELEGANT_FAR)
@@ -321,7 +323,8 @@ def plot_headroom(result: Mapping[str, Any], trust_radius: float | None, path: P
                     else (_PLAIN if near[k] else _PLAIN_FAR)
                 )
             ax.scatter([column[0]], [row], marker="s", s=60, facecolors="none", edgecolors="black", lw=1)
-            ax.scatter([column[choose_candidate(q, distance, trust_radius)]], [row], marker="o", s=10, color="tab:red")
+            chosen = choose_candidate(q, distance, jiti.trust_radius, jiti.min_gain)
+            ax.scatter([column[chosen]], [row], marker="o", s=10, color="tab:red")
         ax.imshow(image, aspect="auto", interpolation="nearest")
         ax.set_yticks(range(len(episode["points"])), [str(p["step"]) for p in episode["points"]], fontsize=7)
         ax.set_xticks([0, n_cand - 1], ["best Q", "worst Q"], fontsize=7)

@@ -9,8 +9,10 @@ on the last line; with --out, the branches also go to that JSON and a PNG beside
 N x (decision points) episodes per start.
 
     python benchmarks/jiti_headroom.py POLICY_DIR CRITIC_DIR --suite libero_object --task 0
-        [--episodes 4 | --episodes 1,10,12] [--seed 3] [--every 15] [--first 10] [--candidates 16]
-        [--trust-radius 0.3] [--out headroom.json]
+        [--episodes 4 | --episodes 1,10,12] [--seed 3] [--every 15] [--first 10] [--candidates N]
+        [--trust-radius R] [--min-gain G] [--out headroom.json]
+
+The candidates' options are JITI's own (`JITIConfig`), with its defaults.
 """
 
 from __future__ import annotations
@@ -23,12 +25,23 @@ import numpy as np
 from headroom import intervention_headroom, plot_headroom
 
 from base_suites.runtime.io import atomic_write_json
-from elegant.cli import parse_indices
+from base_suites.runtime.settings import add_settings_arguments, index_list, settings_from_args, with_overrides
+from elegant.intervention.config import JITIConfig
 from elegant.intervention.selectors import choose_candidate
 
+# JITI's settings these branches use: how many candidates, and how the critic chooses among them
+CHOICE_SETTINGS = ("n_candidates", "trust_radius", "min_gain")
+OTHER_SETTINGS = tuple(name for name in JITIConfig.settings() if name not in CHOICE_SETTINGS)
 
-def _row(point: dict, trust_radius: float | None) -> str:
-    chosen = choose_candidate(np.asarray(point["q"]), np.asarray(point["distance"]), trust_radius)
+
+def choice_settings(args) -> JITIConfig:
+    """JITI's config with the choice settings given on the command line (`CHOICE_SETTINGS`)."""
+    return with_overrides(JITIConfig(), settings_from_args(args, JITIConfig, OTHER_SETTINGS), "headroom")
+
+
+def _row(point: dict, jiti: JITIConfig) -> str:
+    q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
+    chosen = choose_candidate(q, distance, jiti.trust_radius, jiti.min_gain)
     marks = ["E" if e else "." for e in point["elegant"]]
     marks[chosen] = f"[{marks[chosen]}]"
     return f"  step {point['step']:4d}  " + "".join(marks)
@@ -46,15 +59,16 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=3, help="the evaluation seed whose starts are branched")
     parser.add_argument("--every", type=int, default=15)
     parser.add_argument("--first", type=int, default=10)
-    parser.add_argument("--candidates", type=int, default=16)
-    parser.add_argument("--trust-radius", type=float, default=0.3, help="<= 0 for none")
+    add_settings_arguments(parser, JITIConfig, OTHER_SETTINGS)
     parser.add_argument("--max-steps", type=int)
     parser.add_argument(
-        "--init-states", help="as elegant eval --init-states: the subset the starts are drawn from, e.g. 25-49"
+        "--init-states",
+        type=index_list,
+        help="as elegant eval --init-states: the subset the starts are drawn from, e.g. 25-49",
     )
     parser.add_argument("--out", help="write every branch outcome here (JSON)")
     args = parser.parse_args()
-    radius = args.trust_radius if args.trust_radius > 0 else None
+    jiti = choice_settings(args)
     episodes = [int(e) for e in args.episodes.split(",")] if "," in args.episodes else list(range(int(args.episodes)))
     result = intervention_headroom(
         args.suite,
@@ -65,10 +79,9 @@ def main() -> None:
         seed=args.seed,
         every=args.every,
         first=args.first,
-        n_candidates=args.candidates,
-        trust_radius=radius,
+        jiti=jiti,
         max_steps=args.max_steps,
-        init_states=parse_indices(args.init_states, "--init-states"),
+        init_states=args.init_states,
     )
     for episode in result["episodes"]:
         print(
@@ -76,10 +89,10 @@ def main() -> None:
             f"{episode['steps']} steps"
         )
         for point in episode["points"]:
-            print(_row(point, radius))
+            print(_row(point, jiti))
     if args.out:
         atomic_write_json(args.out, result)
-        plot_headroom(result, radius, Path(args.out).with_suffix(".png"))
+        plot_headroom(result, jiti, Path(args.out).with_suffix(".png"))
     print(json.dumps({"benchmark": "jiti_headroom", "policy": args.policy, "critic": args.critic, **result["summary"]}))
 
 

@@ -23,6 +23,7 @@ import numpy as np
 from annotations import CRITERIA, DemoFile, annotate_file
 from annotations.collect import collect_demos
 from base_suites.experts import KNOBS
+from base_suites.runtime.settings import index_list
 
 EXPECTED = {
     "collide": ("collision",),
@@ -83,7 +84,7 @@ def main() -> dict:
     parser.add_argument("--annotated", nargs="*", default=[])
     parser.add_argument("--collect", action="store_true")
     parser.add_argument("--suites", default="libero_object,libero_goal")
-    parser.add_argument("--tasks", default=None)
+    parser.add_argument("--tasks", type=index_list, help="task indices, e.g. 0-4 (default: all)")
     parser.add_argument("--episodes", type=int, default=20, help="per task")
     parser.add_argument("--quality", default="mixed")
     parser.add_argument("--seed", type=int, default=0)
@@ -93,7 +94,7 @@ def main() -> dict:
     if args.collect:
         os.makedirs(args.out, exist_ok=True)
         for suite in args.suites.split(","):
-            tasks = [int(t) for t in args.tasks.split(",")] if args.tasks else None
+            tasks = list(args.tasks) if args.tasks else None
             demos = os.path.join(args.out, f"{suite}.hdf5")
             annotated = os.path.join(args.out, f"{suite}.annotated.hdf5")
             if not os.path.exists(demos):

@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 
 from annotations.collect import collect_demos
-from elegant.cli import parse_indices
+from base_suites.runtime.settings import index_list
 
 
 def hdf5_contents(path: str) -> dict[str, object]:
@@ -59,7 +59,7 @@ def add_collection_arguments(parser: argparse.ArgumentParser, episodes: int) -> 
     """The expert collection a worker benchmark times: --suite, --tasks, --episodes (per task), --workers,
     --seed."""
     parser.add_argument("--suite", default="libero_object")
-    parser.add_argument("--tasks", default="0,1", type=lambda text: parse_indices(text, "--tasks"))
+    parser.add_argument("--tasks", default=(0, 1), type=index_list)
     parser.add_argument("--episodes", type=int, default=episodes, help="episodes per task")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)

@@ -66,11 +66,8 @@ def critic_step() -> Callable[[], None]:
     from critics import CalQLLoss, TanhGaussianActor, TrainConfig, TwinQNetwork, make_replay_buffer
 
     cfg, obs_dim = TrainConfig(), 82
-    loss = CalQLLoss(
-        TanhGaussianActor(obs_dim, ACTION_DIM, cfg.hidden),
-        TwinQNetwork(obs_dim, ACTION_DIM, cfg.hidden),
-        n_actions=cfg.n_actions,
-    )
+    actor, qvalue = TanhGaussianActor(obs_dim, ACTION_DIM, cfg.hidden), TwinQNetwork(obs_dim, ACTION_DIM, cfg.hidden)
+    loss = CalQLLoss.from_config(actor, qvalue, cfg, gamma=cfg.gamma)
     data = random_transitions(20_000, obs_dim, 0)
     return gradient_step(loss, make_replay_buffer(data, cfg.batch_size, torch.Generator().manual_seed(0)))
 

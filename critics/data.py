@@ -58,7 +58,7 @@ from torchrl.objectives.value.functional import reward2go
 
 from annotations import CRITERIA, DemoFile, FeatureEncoder, make_encoder
 from base_suites.runtime.errors import UserInputError, unknown_choice
-from critics.config import REWARDS
+from critics.config import REWARDS, TrainConfig
 from critics.normalization import Normalization
 
 NO_FLOOR = -1.0e6  # an MC "floor" that never clips (for demos whose return is not a lower bound)
@@ -292,25 +292,19 @@ def _elegant_success(demos: list[_RawDemo], gamma: float) -> tuple[torch.Tensor,
     return torch.from_numpy(np.concatenate(rewards)), torch.from_numpy(np.concatenate(returns)), np.concatenate(ended)
 
 
-def load_transitions(
-    paths: Sequence[str],
-    gamma: float | None = None,
-    reward: str = "step",
-    chunk: int = 1,
-    bootstrap: int | None = None,
-    encoding: str = "task-onehot",
-    tasks: Sequence[str] | None = None,
-) -> TransitionData:
-    """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions.
+def load_transitions(paths: Sequence[str], config: TrainConfig) -> TransitionData:
+    """Read annotated files (refusing unlabelled ones) into normalised Cal-QL transitions, as `config` says
+    (its `gamma`, `reward`, `chunk`, `bootstrap`, `encoding` and `tasks`; the other fields are training's).
 
-    gamma: the critic's discount (default: the annotation's). A shorter horizon than the annotation's
+    gamma: the critic's discount (None: the annotation's). A shorter horizon than the annotation's
     makes Q judge the violations about to happen rather than the rest of the episode, which is what
     picking among candidate actions at one moment needs; the returns are recomputed with it.
     reward: "step" penalises the steps at which a criterion is violated; "segment" every step of a
-    25-frame window that violates one. A violation judged at one instant (an object coming to rest off
-    target) is one step under "step", next to a tilt's dozens, so Q barely registers it; per window every
-    violation weighs a window, the actions leading up to it inside the window share its penalty, and
-    human labels (which are per window) reach the critic as they are.
+    25-frame window that violates one; "elegant" is 1 for an elegant success, the episode ending at its
+    first violating window. A violation judged at one instant (an object coming to rest off target) is one
+    step under "step", next to a tilt's dozens, so Q barely registers it; per window every violation weighs
+    a window, the actions leading up to it inside the window share its penalty, and human labels (which
+    are per window) reach the critic as they are.
     chunk: the number of actions each transition's action holds (see the module docstring).
     bootstrap: a seed, to train on as many episodes drawn with replacement from all of them (a bootstrap
     resample): critics trained on different resamples err apart where the data says little, which a
@@ -318,6 +312,14 @@ def load_transitions(
     encoding: how states become inputs (`annotations.features.ENCODINGS`); "goal-relative" needs each
     demo's `goal_geometry` attribute, which annotation records.
     tasks: keep only these tasks' demos (keys "suite/index"); a task the files do not hold is refused."""
+    gamma, reward, chunk, bootstrap, encoding = (
+        config.gamma,
+        config.reward,
+        config.chunk,
+        config.bootstrap,
+        config.encoding,
+    )
+    tasks = None if config.tasks is None else list(config.tasks)
     if gamma is not None and not 0.0 < gamma < 1.0:
         raise UserInputError(f"gamma must lie in (0, 1), got {gamma}")
     if int(chunk) != chunk or chunk < 1:

@@ -46,7 +46,7 @@ from torch import Tensor
 from torchrl.objectives import LossModule
 from torchrl.objectives.value.functional import td0_return_estimate
 
-from critics.config import BACKUPS, VALUE_LOSSES
+from critics.config import BACKUPS, VALUE_LOSSES, TrainConfig
 from critics.data import NO_FLOOR
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
@@ -116,16 +116,14 @@ class CalQLLoss(LossModule):
         target_entropy: the entropy the temperature tuning aims at; "auto" is -action_dim.
         backup: the next action a' of the TD target. "policy": a' ~ pi(.|s'), Cal-QL's. "dataset": the
             dataset's next action (read under ("next", action)), an in-sample backup as in SARSA and IQL;
-            Q then values the demonstrator's continuation. Why: the CQL term lowers Q of the actor's
-            actions, and backing those up sank a critic of libero_object/0 below the lowest achievable
-            return (Q of clean demos about -10, with returns in [-10, 0]); the in-sample backup kept it
-            within range and raised held-out AUROC from 0.64 to 0.73. But it values only the data's actions:
-            choosing among a BC policy's candidates with it, JITI lost more success (48% against 80% with
-            Cal-QL's backup, base 72%), so "policy" stays the default.
+            Q then values the demonstrator's continuation (`TrainConfig.backup` says which the recipe takes).
         mc_weight: weight of the regression of Q(s, a_data) on `mc_return` added to loss_qvalue (rows
-            whose return is `critics.data.NO_FLOOR` are left out); 0, the default, is Cal-QL's TD alone.
-        value_loss: "mse" (the default) or "bce" (logit critics classified against target probabilities;
-            rewards and returns must lie in [0, 1]).
+            whose return is `critics.data.NO_FLOOR` are left out); 0 is Cal-QL's TD alone.
+        value_loss: "mse" or "bce" (logit critics classified against target probabilities; rewards and
+            returns must lie in [0, 1]).
+
+    The settings `TrainConfig` declares have no defaults here: `from_config` passes the recipe's, and a
+    caller building the loss by hand says every one (one declaration per setting, docs/design.md §9).
 
     Reads (names configurable with `set_keys`): observation, action, mc_return, ("next", observation),
     ("next", reward), ("next", terminated), and steps_to_next_obs where present (multi-step and action-chunk
@@ -170,19 +168,19 @@ class CalQLLoss(LossModule):
         actor_network: TanhGaussianActor,
         qvalue_network: TwinQNetwork,
         *,
-        gamma: float = 0.99,
-        n_actions: int = 10,
-        cql_weight: float = 5.0,
-        temperature: float = 1.0,
-        calibrate: bool = True,
-        with_lagrange: bool = False,
-        target_action_gap: float = 0.8,
+        gamma: float,
+        n_actions: int,
+        cql_weight: float,
+        temperature: float,
+        calibrate: bool,
+        with_lagrange: bool,
+        target_action_gap: float,
+        backup: str,
+        mc_weight: float,
+        value_loss: str,
         alpha_init: float = 1.0,
         fixed_alpha: bool = False,
         target_entropy: float | str = "auto",
-        backup: str = "policy",
-        mc_weight: float = 0.0,
-        value_loss: str = "mse",
     ) -> None:
         super().__init__()
         if value_loss not in VALUE_LOSSES:
@@ -212,6 +210,27 @@ class CalQLLoss(LossModule):
             self.log_alpha = torch.nn.Parameter(log_alpha)
         if self.with_lagrange:
             self.log_alpha_prime = torch.nn.Parameter(torch.tensor(0.0))
+
+    @classmethod
+    def from_config(
+        cls, actor_network: TanhGaussianActor, qvalue_network: TwinQNetwork, config: TrainConfig, gamma: float
+    ) -> CalQLLoss:
+        """The loss a `TrainConfig` describes; `gamma` is the data's (the config's, or the annotation's
+        where the config leaves it None: `TransitionData.gamma`)."""
+        return cls(
+            actor_network,
+            qvalue_network,
+            gamma=gamma,
+            n_actions=config.n_actions,
+            cql_weight=config.cql_weight,
+            temperature=config.temperature,
+            calibrate=config.calibrate,
+            with_lagrange=config.with_lagrange,
+            target_action_gap=config.target_action_gap,
+            backup=config.backup,
+            mc_weight=config.mc_weight,
+            value_loss=config.value_loss,
+        )
 
     # ---- keys --------------------------------------------------------------------------------
     @property

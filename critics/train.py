@@ -60,20 +60,7 @@ class _Run:
         critic = TwinQNetwork(data.obs_dim, data.action_dim, cfg.hidden)
         actor = TanhGaussianActor(data.obs_dim, data.action_dim, cfg.hidden)
         self.device, self.device_kind = device, device_kind(device)
-        self.loss = CalQLLoss(
-            actor,
-            critic,
-            gamma=data.gamma,
-            n_actions=cfg.n_actions,
-            cql_weight=cfg.cql_weight,
-            temperature=cfg.temperature,
-            calibrate=cfg.calibrate,
-            with_lagrange=cfg.with_lagrange,
-            target_action_gap=cfg.target_action_gap,
-            backup=cfg.backup,
-            mc_weight=cfg.mc_weight,
-            value_loss=cfg.value_loss,
-        ).to(device)
+        self.loss = CalQLLoss.from_config(actor, critic, cfg, data.gamma).to(device)
         self.updater = SoftUpdate(self.loss, tau=cfg.tau)
         groups = [
             {"params": list(self.loss.actor_network_params.values(True, True)), "lr": cfg.actor_lr},
@@ -229,15 +216,7 @@ def train_critic(
     device = use_compute(compute or ComputeConfig(), "train-critic")
     check_output(out, "dir", resume=resume, overwrite=overwrite, results=(CHECKPOINT_FILE, WEIGHTS_FILE))
     ckpt_path = os.path.join(out, CHECKPOINT_FILE)
-    data = load_transitions(
-        cfg.paths,
-        cfg.gamma,
-        cfg.reward,
-        cfg.chunk,
-        cfg.bootstrap,
-        cfg.encoding,
-        None if cfg.tasks is None else list(cfg.tasks),
-    )
+    data = load_transitions(cfg.paths, cfg)
     with output_lock(out):  # one writer per critic directory
         os.makedirs(out, exist_ok=True)  # only now: refused settings or data leave nothing behind
         if overwrite:  # the earlier run's critic and checkpoint go before this run writes its own

@@ -87,37 +87,15 @@ def _tasks(args: argparse.Namespace) -> None:
         print(f"{t.index:3d}  {t.language}\n     goal: {goal}   init states: {t.n_init_states}")
 
 
-def _task_list(text: str | None) -> list[int] | None:
-    from base_suites.runtime.errors import UserInputError
+def _tasks_arg(p: Any, help: str = "task indices, e.g. 0-4 or 0,3 (default: all of the suite)") -> None:
+    """`--tasks` on a parser or an option group, read by the one index parser every generated option uses."""
+    from base_suites.runtime.settings import index_list
 
-    if text is None:
-        return None
-    try:
-        tasks = [int(t) for t in text.split(",") if t.strip()]
-    except ValueError:
-        tasks = []
-    if not tasks:
-        raise UserInputError(f"--tasks {text!r}: expected comma-separated task indices, e.g. 0,3")
-    return tasks
+    p.add_argument("--tasks", type=index_list, metavar="TASKS", help=help)
 
 
-def parse_indices(text: str | None, flag: str) -> list[int] | None:
-    """'0-24' or '0,3,5-9' -> the listed indices (None stays None)."""
-    from base_suites.runtime.errors import UserInputError
-
-    if text is None:
-        return None
-    out = []
-    for part in (p.strip() for p in text.split(",") if p.strip()):
-        low, dash, high = part.partition("-")
-        try:
-            first, last = int(low), int(high) if dash else int(low)
-        except ValueError:
-            raise UserInputError(f"{flag} {text!r}: expected indices and ranges, e.g. 0-24 or 0,3,5-9") from None
-        if last < first:
-            raise UserInputError(f"{flag} {text!r}: range {part!r} runs backwards")
-        out += range(first, last + 1)
-    return out
+def _listed(indices: tuple[int, ...] | None) -> list[int] | None:
+    return None if indices is None else list(indices)
 
 
 def _workers_arg(p: argparse.ArgumentParser, default: int = 1) -> None:
@@ -160,7 +138,7 @@ def _demos_args(p: argparse.ArgumentParser) -> None:
     from base_suites.runtime.settings import add_settings_arguments
 
     p.add_argument("--suite", required=True)
-    p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
+    _tasks_arg(p)
     p.add_argument("--out", required=True)
     p.add_argument("--resume", action="store_true", help="continue an interrupted file")
     _overwrite_arg(p)
@@ -175,7 +153,7 @@ def _demos(args: argparse.Namespace) -> dict:
 
     return collect_demos(
         args.suite,
-        _task_list(args.tasks),
+        _listed(args.tasks),
         args.out,
         resume=args.resume,
         overwrite=args.overwrite,
@@ -189,7 +167,7 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     from elegant.evaluation.config import RolloutConfig
 
     p.add_argument("--suite", required=True)
-    p.add_argument("--tasks", help="comma-separated task indices (default: all of the suite)")
+    _tasks_arg(p)
     p.add_argument("--policy", required=True, help=POLICY_HELP)
     p.add_argument("--out", required=True, help="output HDF5 (demo layout; annotate it with elegant annotate)")
     p.add_argument("--resume", action="store_true", help="continue OUT.partial")
@@ -209,7 +187,7 @@ def _rollouts(args: argparse.Namespace) -> dict:
 
     return collect_rollouts(
         args.suite,
-        _task_list(args.tasks),
+        _listed(args.tasks),
         args.policy,
         args.out,
         resume=args.resume,
@@ -378,7 +356,7 @@ def _eval_args(p: argparse.ArgumentParser) -> None:
     from elegant.intervention.config import JITIConfig  # light: no torch
 
     p.add_argument("--suite", required=True)
-    p.add_argument("--tasks", help="comma-separated task indices (default: all)")
+    _tasks_arg(p)
     p.add_argument("--policy", required=True, help=POLICY_HELP)
     p.add_argument(
         "--critic",
@@ -403,7 +381,7 @@ def _eval(args: argparse.Namespace) -> dict:
     settings = {**settings_from_args(args, EvalConfig, exclude=("jiti",)), **settings_from_args(args, JITIConfig)}
     summary = evaluate(
         args.suite,
-        _task_list(args.tasks),
+        _listed(args.tasks),
         args.policy,
         args.critic,
         out=args.out,
@@ -421,7 +399,7 @@ def _robustness_args(p: argparse.ArgumentParser) -> None:
     from elegant.intervention.config import JITIConfig
 
     p.add_argument("--suite", required=True, help="comma-separated suites, e.g. libero_object,libero_goal")
-    p.add_argument("--tasks", help="comma-separated task indices within every suite (default: all)")
+    _tasks_arg(p, "task indices within every suite, e.g. 0-4 or 0,3 (default: all)")
     p.add_argument("--policy", required=True, help=POLICY_HELP)
     p.add_argument("--critic", help="critic directory (or comma-separated ones); required for jiti and always")
     p.add_argument("--out", required=True, help="directory for the runs, robustness.json, report.md and the plot")
@@ -454,7 +432,7 @@ def _robustness(args: argparse.Namespace) -> dict:
         args.critic,
         args.out,
         config,
-        tasks=_task_list(args.tasks),
+        tasks=_listed(args.tasks),
         resume=args.resume,
         workers=_workers(args),
         compute=_compute(args),
@@ -532,7 +510,7 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("data", nargs="+", help="demos HDF5 file(s) holding the demos of every task (from elegant demos)")
     p.add_argument("--suite", required=True)
     order = p.add_mutually_exclusive_group(required=True)
-    order.add_argument("--tasks", help="comma-separated task indices in learning order, e.g. 0,1,2")
+    _tasks_arg(order, "task indices in learning order, e.g. 0-2 or 2,0,1")
     order.add_argument(
         "--task-order", type=int, metavar="K", help="all ten tasks in LIBERO's task order K (0: the suite's own order)"
     )
@@ -567,7 +545,7 @@ def _lifelong(args: argparse.Namespace) -> dict:
     from elegant.evaluation.lifelong_table import run_lifelong_seeds
 
     settings = settings_from_args(args, LifelongConfig)
-    tasks = _task_list(args.tasks) if args.tasks is not None else task_order(args.suite, args.task_order)
+    tasks = _listed(args.tasks) if args.tasks is not None else task_order(args.suite, args.task_order)
     common = {
         "resume": args.resume,
         "workers": _workers(args),

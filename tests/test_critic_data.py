@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import h5py
 import numpy as np
 import pytest
@@ -12,9 +14,19 @@ import torch
 
 from annotations import CRITERIA, SEGMENT_LENGTH, Demo, DemoWriter
 from base_suites.runtime.errors import UserInputError
-from critics import Normalization, load_transitions, make_replay_buffer
+from critics import Normalization, TrainConfig, load_transitions, make_replay_buffer
 from critics.data import NO_FLOOR
 from critics.normalization import MAX_ABS_Z, MIN_STD
+
+# The data settings these tests were written against: the step penalty, one action per transition and the
+# annotation's gamma (the recipe's are the elegant reward, chunks of 8 and 0.995); each test sets what it
+# examines on top.
+STEP = TrainConfig(gamma=None, reward="step", chunk=1, value_loss="mse")
+
+
+def load(paths, **settings):
+    return load_transitions(paths, replace(STEP, **settings))
+
 
 ROBOT = [["robot0_eef_pos", 3], ["robot0_eef_quat", 4], ["robot0_gripper_qpos", 2], ["robot0_joint_pos", 7]]
 
@@ -140,7 +152,7 @@ def read_raw(path: str) -> list[dict]:
 
 
 def test_transitions_follow_the_documented_layout(annotated):
-    data = load_transitions([annotated])
+    data = load([annotated])
     td = data.transitions
     raw = read_raw(annotated)
     total = sum(len(d["actions"]) for d in raw)
@@ -180,7 +192,7 @@ def test_transitions_follow_the_documented_layout(annotated):
 
 
 def test_episode_ends_and_returns(annotated):
-    data = load_transitions([annotated])
+    data = load([annotated])
     td = data.transitions
     raw = read_raw(annotated)
     ends = np.cumsum([len(d["actions"]) for d in raw]) - 1
@@ -202,7 +214,7 @@ def test_episode_ends_and_returns(annotated):
 
 
 def test_critic_discount_can_differ_from_the_annotations(annotated):
-    data = load_transitions([annotated], gamma=0.5)
+    data = load([annotated], gamma=0.5)
     raw = read_raw(annotated)
     success = np.array([d["rewards"][-1] > 0 for d in raw])
     expected = np.concatenate(
@@ -214,12 +226,12 @@ def test_critic_discount_can_differ_from_the_annotations(annotated):
     assert data.gamma == 0.5
     assert np.allclose(data.transitions["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
     with pytest.raises(UserInputError, match="gamma must lie in"):
-        load_transitions([annotated], gamma=1.0)
+        load([annotated], gamma=1.0)
 
 
 def test_segment_reward_penalises_every_step_of_a_violating_window(annotated):
     """reward="segment": a one-step violation costs its whole 25-frame window (human labels live there too)."""
-    data = load_transitions([annotated], reward="segment")
+    data = load([annotated], reward="segment")
     with h5py.File(annotated, "r") as f:
         demos = [f["data"][f"demo_{i}"] for i in range(6)]
         windows = [np.logical_and.reduce([d["itc_segments"][c][()] for c in CRITERIA]) for d in demos]
@@ -229,20 +241,20 @@ def test_segment_reward_penalises_every_step_of_a_violating_window(annotated):
     reward = data.transitions["next", "reward"].squeeze(-1).numpy()
     assert np.array_equal(reward, np.concatenate(penalty))
     # the per-step form penalises fewer steps: only those that violate (random labels break ~4% of steps)
-    steps = load_transitions([annotated]).transitions["next", "reward"].squeeze(-1).numpy()
+    steps = load([annotated]).transitions["next", "reward"].squeeze(-1).numpy()
     assert (steps < 0).sum() < (reward < 0).sum() and np.all(reward[steps < 0] < 0)
     expected = np.concatenate(
         [discounted_returns(p, 0.9) if ok else np.full(len(p), NO_FLOOR) for p, ok in zip(penalty, success)]
     )
     assert np.allclose(data.transitions["mc_return"].squeeze(-1).numpy(), expected, atol=1e-5)
     with pytest.raises(UserInputError, match="unknown reward 'window'"):
-        load_transitions([annotated], reward="window")
+        load([annotated], reward="window")
 
 
 def test_elegant_reward_pays_an_elegant_success_and_ends_at_the_first_violating_window(tmp_path):
     """reward="elegant": Q is the discounted chance of an elegant success, the binary outcome ESR counts."""
     path = write_annotated(tmp_path / "e.hdf5", n_demos=3, lengths=(60, 61), violation_rate=0.0, violate_at={1: 40})
-    td = load_transitions([path], gamma=0.9, reward="elegant").transitions
+    td = load([path], gamma=0.9, reward="elegant").transitions
     reward, ret = td["next", "reward"].squeeze(-1).numpy(), td["mc_return"].squeeze(-1).numpy()
     done, terminated = td["next", "done"].squeeze(-1).numpy(), td["next", "terminated"].squeeze(-1).numpy()
     elegant, violated, failed = np.split(np.arange(180), [60, 120])  # demo 0 elegant, 1 collides at 40, 2 fails cleanly
@@ -252,7 +264,7 @@ def test_elegant_reward_pays_an_elegant_success_and_ends_at_the_first_violating_
     # the collision at step 40 breaks window 25-49: from its start no elegant success is possible
     assert np.flatnonzero(done).tolist() == [59, *range(60 + 25, 120), 179] and np.array_equal(done, terminated)
     assert not td["next", "truncated"].any()
-    chunked = load_transitions([path], gamma=0.9, reward="elegant", chunk=8).transitions
+    chunked = load([path], gamma=0.9, reward="elegant", chunk=8).transitions
     assert (
         chunked["next", "terminated"][60 + 20].item() and chunked["steps_to_next_obs"][60 + 20].item() == 6
     )  # ends with step 25
@@ -263,21 +275,21 @@ def test_elegant_reward_pays_an_elegant_success_and_ends_at_the_first_violating_
 def test_explored_decisions_are_marked_on_their_rows(tmp_path):
     path = write_annotated(tmp_path / "x.hdf5", n_demos=3, lengths=(30, 31), explored_at={0: [3, 10], 2: [0]})
     for chunk in (1, 8):  # chunk transitions keep one row per step
-        data = load_transitions([path], chunk=chunk)
+        data = load([path], chunk=chunk)
         assert data.explored.dtype == torch.bool and len(data.explored) == len(data.transitions)
         assert torch.nonzero(data.explored).flatten().tolist() == [3, 10, 60]
     bad = write_annotated(tmp_path / "bad.hdf5", n_demos=2, lengths=(30, 31), explored_at={1: [30]})
     with pytest.raises(
         UserInputError, match=r"data/demo_1: attr explored_steps must list step indices in \[0, 30\), got \[30\]"
     ):
-        load_transitions([bad])
+        load([bad])
 
 
 def test_the_data_fingerprint_follows_the_explored_decisions(tmp_path):
     """A resume must notice when the explored rows changed, though every transition stayed the same."""
 
     def fingerprint(name, explored_at):
-        return load_transitions(
+        return load(
             [write_annotated(tmp_path / name, n_demos=3, lengths=(30, 31), explored_at=explored_at)]
         ).fingerprint()
 
@@ -299,28 +311,28 @@ def test_a_bootstrap_resample_draws_whole_episodes_with_replacement_by_its_seed(
         raw = td["action"].numpy() * norm.action_half_range + norm.action_center
         return [np.round(a, 4).tobytes() for a in np.split(raw, ends[:-1])]
 
-    whole = episodes(load_transitions([path]))
-    drawn = episodes(load_transitions([path], bootstrap=3))
+    whole = episodes(load([path]))
+    drawn = episodes(load([path], bootstrap=3))
     assert len(drawn) == len(whole) == 8
     assert set(drawn) <= set(whole) and len(set(drawn)) < len(set(whole))  # some episodes twice, some left out
-    assert load_transitions([path], bootstrap=3).fingerprint() == load_transitions([path], bootstrap=3).fingerprint()
-    assert episodes(load_transitions([path], bootstrap=4)) != drawn
+    assert load([path], bootstrap=3).fingerprint() == load([path], bootstrap=3).fingerprint()
+    assert episodes(load([path], bootstrap=4)) != drawn
 
 
 def test_refuses_unlabelled_and_miscalibrated_files(tmp_path):
     plain = write_annotated(tmp_path / "plain.hdf5", labelled=False)
     with pytest.raises(UserInputError, match="plain.hdf5: no ITC labels"):
-        load_transitions([plain])
+        load([plain])
     wrong = write_annotated(tmp_path / "wrong.hdf5", corrupt_return=True)
     with pytest.raises(UserInputError, match=r"wrong.hdf5: data/demo_0/mc_return differs"):
-        load_transitions([wrong])
+        load([wrong])
     other_gamma = write_annotated(tmp_path / "other.hdf5", gamma=0.5)
     with pytest.raises(UserInputError, match="gamma"):
-        load_transitions([write_annotated(tmp_path / "a.hdf5"), other_gamma])
+        load([write_annotated(tmp_path / "a.hdf5"), other_gamma])
 
 
 def test_replay_buffer_sampling_is_seeded(annotated):
-    data = load_transitions([annotated])
+    data = load([annotated])
 
     def draws(seed: int) -> list[torch.Tensor]:
         buffer = make_replay_buffer(data.transitions, 16, torch.Generator().manual_seed(seed))
@@ -369,7 +381,7 @@ def test_chunk_transitions_sum_the_chunks_penalties_and_bootstrap_after_the_chun
     """chunk=4: step t's action is a_t..a_t+3 (last repeated past the end), its reward the discounted sum
     of those steps' penalties, its next state the one after the chunk, its next action the chunk that
     starts there, its end flags the chunk's last step's."""
-    per_step, chunked = load_transitions([annotated], gamma=0.5), load_transitions([annotated], gamma=0.5, chunk=4)
+    per_step, chunked = load([annotated], gamma=0.5), load([annotated], gamma=0.5, chunk=4)
     one, four = per_step.transitions, chunked.transitions
     assert chunked.chunk == 4 and four.batch_size == one.batch_size and four["action"].shape[-1] == 28
     lengths = [len(d["actions"]) for d in read_raw(annotated)]
@@ -395,4 +407,4 @@ def test_chunk_transitions_sum_the_chunks_penalties_and_bootstrap_after_the_chun
         np.testing.assert_array_equal(four["mc_return"][rows].numpy(), one["mc_return"][rows].numpy())
         start += length
     with pytest.raises(UserInputError, match="chunk must be a positive integer"):
-        load_transitions([annotated], chunk=0)
+        load([annotated], chunk=0)

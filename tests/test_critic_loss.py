@@ -17,11 +17,25 @@ from critics.data import NO_FLOOR
 OBS, ACT, BATCH, N = 5, 3, 6, 4
 
 
+# The loss settings these tests were written against: plain Cal-QL (CQL weight 5, the policy's backup,
+# TD alone, squared error); each test sets what it examines on top.
+CAL_QL = dict(
+    n_actions=N,
+    gamma=0.9,
+    cql_weight=5.0,
+    temperature=1.0,
+    calibrate=True,
+    with_lagrange=False,
+    target_action_gap=0.8,
+    backup="policy",
+    mc_weight=0.0,
+    value_loss="mse",
+)
+
+
 def make_loss(seed: int = 0, **kwargs) -> CalQLLoss:
     torch.manual_seed(seed)
-    return CalQLLoss(
-        TanhGaussianActor(OBS, ACT, (8,)), TwinQNetwork(OBS, ACT, (8, 8)), n_actions=N, gamma=0.9, **kwargs
-    )
+    return CalQLLoss(TanhGaussianActor(OBS, ACT, (8,)), TwinQNetwork(OBS, ACT, (8, 8)), **{**CAL_QL, **kwargs})
 
 
 def make_batch(seed: int = 1, mc_return: float | None = None) -> TensorDict:

@@ -307,7 +307,7 @@ def test_explored_fraction_fills_its_share_of_every_batch_with_explored_decision
     from critics.train import _Run
 
     path = write_annotated(tmp_path / "x.hdf5", n_demos=4, explored_at={0: [2, 5], 1: [0], 3: [7]})
-    data = load_transitions([path])
+    data = load_transitions([path], TrainConfig(gamma=None, reward="step", chunk=1, value_loss="mse"))
     explored = {tuple(row.tolist()) for row in data.transitions["observation"][data.explored]}
     run = _Run(TrainConfig(paths=[path], steps=1, batch_size=8, hidden=[16], n_actions=2, explored_fraction=0.25), data)
     batches = []

@@ -6,6 +6,7 @@ import pytest
 from conftest import load_benchmark
 
 from base_suites import make_env
+from elegant.intervention.config import JITIConfig
 from elegant.policies.adapters import as_policy
 from itc import ITCMonitor
 
@@ -33,7 +34,7 @@ def test_summary_counts_reachable_critic_and_random_choices_within_the_trust_rad
             _point([0.0, 2.0, 1.0], [0.0, 0.1, 0.1], [True, False, True]),  # the critic spoils it
         ],
     }
-    s = summarize_headroom([inelegant, elegant], trust_radius=0.3)
+    s = summarize_headroom([inelegant, elegant], JITIConfig(trust_radius=0.3))
     assert s["decision_points"] == 3 and s["base_esr"] == 0.5
     assert s["choice_matters"] == pytest.approx(2 / 3)
     assert s["headroom"] == 0.5 and s["rescuable_episodes"] == 1.0
@@ -45,7 +46,7 @@ def test_summary_counts_reachable_critic_and_random_choices_within_the_trust_rad
     assert s["outcome_auroc"] == pytest.approx(0.25)
     assert s["outcome_auroc_se"] == pytest.approx(np.std([0.5, 0.0], ddof=1) / np.sqrt(2))
     # without a trust radius the far elegant candidate is the critic's choice; one point has no spread
-    alone = summarize_headroom([inelegant], trust_radius=None)
+    alone = summarize_headroom([inelegant], JITIConfig(trust_radius=None))
     assert alone["critic_hit"] == 0.5 and alone["outcome_auroc"] == 0.75 and alone["outcome_auroc_se"] is None
 
 
@@ -107,11 +108,11 @@ def test_headroom_plot_is_written_and_an_empty_result_is_refused(tmp_path):
             }
         ]
     }
-    path = plot_headroom(result, 0.3, tmp_path / "headroom.png")
+    path = plot_headroom(result, JITIConfig(trust_radius=0.3), tmp_path / "headroom.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(UserInputError):
         plot_headroom(
-            {"episodes": [{"init_index": 0, "base_elegant": True, "points": []}]}, 0.3, tmp_path / "empty.png"
+            {"episodes": [{"init_index": 0, "base_elegant": True, "points": []}]}, JITIConfig(), tmp_path / "empty.png"
         )
 
 
@@ -172,10 +173,12 @@ def test_a_chunked_policy_is_branched_on_whole_chunks_at_its_decision_points():
     env.close()
     assert [a[0] for a in actions[:6]] == [0.0, 0.0, 0.5, 0.5, 0.0, 0.0]  # the candidate chunk, then the policy again
     with pytest.raises(UserInputError, match="multiples of 2"):
-        intervention_headroom("libero_object", 0, ChunkedPlunge(), ChunkHeightCritic(), every=3, first=2)
+        intervention_headroom(
+            "libero_object", 0, ChunkedPlunge(), ChunkHeightCritic(), every=3, first=2, jiti=JITIConfig()
+        )
     _another_critic_is_judged_on_the_stored_branches(result)
     with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 2"):
-        intervention_headroom("libero_object", 0, ChunkedPlunge(), HeightCritic(), every=4, first=2)
+        intervention_headroom("libero_object", 0, ChunkedPlunge(), HeightCritic(), every=4, first=2, jiti=JITIConfig())
 
 
 def _another_critic_is_judged_on_the_stored_branches(episode):
@@ -185,13 +188,13 @@ def _another_critic_is_judged_on_the_stored_branches(episode):
     rescore_headroom = headroom.rescore_headroom
 
     result = {"suite": "libero_object", "task": 0, "chunk": 2, "episodes": [episode]}
-    rescored = rescore_headroom(result, ContraryChunkCritic(), trust_radius=None)
+    rescored = rescore_headroom(result, ContraryChunkCritic(), JITIConfig(trust_radius=None))
     for old, new in zip(episode["points"], rescored["episodes"][0]["points"]):
         assert new["q"] == pytest.approx([-v for v in old["q"]], abs=1e-3)
         assert new["elegant"] == old["elegant"] and new["candidates"] == old["candidates"]
     assert rescored["summary"]["decision_points"] == 2
     with pytest.raises(UserInputError, match="chunks of 1 actions but the policy decides 2"):
-        rescore_headroom(result, HeightCritic(), trust_radius=None)
+        rescore_headroom(result, HeightCritic(), JITIConfig(trust_radius=None))
     stripped = {
         **result,
         "episodes": [
@@ -199,4 +202,4 @@ def _another_critic_is_judged_on_the_stored_branches(episode):
         ],
     }
     with pytest.raises(UserInputError, match="stores no states and candidates"):
-        rescore_headroom(stripped, ContraryChunkCritic(), trust_radius=None)
+        rescore_headroom(stripped, ContraryChunkCritic(), JITIConfig(trust_radius=None))

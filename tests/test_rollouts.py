@@ -211,12 +211,19 @@ def test_only_a_bc_policy_directory_can_be_asked_to_act_by_sampling(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-def test_init_state_ranges_parse_and_bad_ones_are_refused_in_one_line():
-    from elegant.cli import parse_indices
+def test_index_ranges_parse_and_bad_ones_are_refused_in_one_line(capsys):
+    import argparse
 
-    assert (
-        parse_indices("0-3,7, 9-10", "--init-states") == [0, 1, 2, 3, 7, 9, 10] and parse_indices(None, "--x") is None
-    )
+    from base_suites.runtime.settings import index_list
+    from elegant.cli import main
+
+    assert index_list("0-3,7, 9-10") == (0, 1, 2, 3, 7, 9, 10) and index_list("2,0,1") == (2, 0, 1)
     for bad, message in (("3-", "expected indices and ranges"), ("9-5", "runs backwards"), ("a", "expected indices")):
-        with pytest.raises(UserInputError, match=message):
-            parse_indices(bad, "--init-states")
+        with pytest.raises(argparse.ArgumentTypeError, match=message):
+            index_list(bad)
+    # --tasks takes ranges as --init-states does: one parser for both, refusing in one line
+    for flag in ("--tasks", "--init-states"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["eval", "--suite", "libero_object", "--policy", "p", "--out", "o", flag, "4-1"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert exit_.value.code != 0 and len(err) == 1 and "runs backwards" in err[0] and flag in err[0]

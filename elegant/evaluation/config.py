@@ -10,9 +10,9 @@ from annotations.features import ENCODINGS, Encoding
 from base_suites.env import ObsMode, RenderQuality
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.settings import index_list, nested, setting, with_overrides
-from elegant.intervention.config import JITIConfig
+from elegant.intervention.config import JITIConfig, candidates_setting, trust_radius_setting
 from elegant.policies.bc_config import DEFAULT_MODES
-from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACTS, PolicyAct
+from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACT_HELP, POLICY_ACTS, PolicyAct
 
 
 def _render_quality_setting() -> Any:
@@ -59,12 +59,7 @@ class EvalConfig:
     init_states: tuple[int, ...] | None = setting(
         None, "start only from these shipped init states, e.g. 25-49 (default: all)", parse=index_list
     )
-    policy_act: PolicyAct = setting(
-        DEFAULT_POLICY_ACT,
-        "how the BC policy acts: its mixture's most likely mean (mode, deterministic), a draw from the mixture "
-        "at every decision (sample, as LIBERO runs its BC policies) or the mean of a drawn component (component, "
-        "LIBERO's low_eval_noise)",
-    )
+    policy_act: PolicyAct = setting(DEFAULT_POLICY_ACT, POLICY_ACT_HELP)
     replan_steps: int | None = _replan_steps_setting()
     gate: str | None = setting(
         None, "mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)"
@@ -118,8 +113,8 @@ class RolloutConfig:
         "of them (starts cycle first, then the steps), so episodes from one start differ in one decision",
         parse=index_list,
     )
-    trust_radius: float | None = setting(0.3, "explored candidates lie within this distance of the base plan")
-    n_candidates: int = setting(16, "candidates drawn per explored decision", flag="--candidates")
+    trust_radius: float | None = trust_radius_setting()
+    n_candidates: int = candidates_setting()
     init_states: tuple[int, ...] | None = setting(
         None, "start only from these shipped init states, e.g. 0-24 (keep them apart from eval's)", parse=index_list
     )
@@ -128,7 +123,7 @@ class RolloutConfig:
     perturbation: str | None = setting(
         None, "as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states"
     )
-    policy_act: PolicyAct = setting(DEFAULT_POLICY_ACT, "how the BC policy acts (as in eval)")
+    policy_act: PolicyAct = setting(DEFAULT_POLICY_ACT, POLICY_ACT_HELP)
     replan_steps: int | None = _replan_steps_setting()
     obs: ObsMode = setting(
         "lowdim", "what the policy observes (as in eval, but not rgb: the file stores the state it needs)"

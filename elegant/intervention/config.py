@@ -16,6 +16,7 @@ from typing import Any, Literal, get_args
 from base_suites.runtime.errors import UserInputError, unknown_choice
 from base_suites.runtime.settings import setting
 from elegant.intervention.modes import jiti_mode, mode_names
+from elegant.policies.protocol import DEFAULT_NOISE_SCALE
 
 ThresholdMode = Literal["absolute", "std"]
 TriggerName = Literal["deviation", "drop", "none"]
@@ -24,8 +25,24 @@ Warmup = Literal["base", "steer"]
 THRESHOLD_MODES: tuple[str, ...] = get_args(ThresholdMode)
 TRIGGERS: tuple[str, ...] = get_args(TriggerName)
 WARMUPS: tuple[str, ...] = get_args(Warmup)
-DEFAULT_NOISE_SCALE = 0.1
 MAX_CANDIDATES = 4096  # far beyond any useful count; a typo of more would exhaust memory at the first decision
+
+
+def candidates_setting() -> Any:
+    """N, declared once for JITI's choices and the recorded rollouts' explored decisions (`RolloutConfig`)."""
+    return setting(
+        16, "candidates drawn from the policy per re-ranked decision, the base plan one of them", flag="--candidates"
+    )
+
+
+def trust_radius_setting() -> Any:
+    """The trust radius, declared once: JITI chooses within it and `elegant rollouts` explores within it
+    (`RolloutConfig`), so a critic learns from the alternatives it will be asked to judge."""
+    return setting(
+        1.5,
+        "only candidates within this distance of the base plan may be chosen, or explored in recorded rollouts "
+        "(None: no limit)",
+    )
 
 
 @dataclass(frozen=True)
@@ -51,15 +68,11 @@ class JITIConfig:
         "steer",
         "what mode jiti's first --window decisions execute: the base plan (base) or the critic's choice (steer)",
     )
-    n_candidates: int = setting(
-        16, "candidates drawn from the policy per re-ranked decision, the base plan one of them", flag="--candidates"
-    )
+    n_candidates: int = candidates_setting()
     noise_scale: float = setting(
         DEFAULT_NOISE_SCALE, "std of the Gaussian candidates around a policy's action when it cannot sample its own"
     )
-    trust_radius: float | None = setting(
-        1.5, "only candidates within this distance of the base plan may be chosen (None: no limit)"
-    )
+    trust_radius: float | None = trust_radius_setting()
     min_gain: float = setting(0.0, "a candidate must beat the base plan's score by more than this to replace it")
     max_overrides: int | None = setting(None, "mode jiti stops overriding after this many per episode (default: none)")
     random_rate: float = setting(0.1, "mode random: the fraction of decisions given a random eligible candidate")

@@ -23,9 +23,7 @@ def eligible_candidates(distance: np.ndarray, trust_radius: float | None) -> np.
     return np.ones(distance.shape, dtype=bool) if trust_radius is None else distance <= trust_radius
 
 
-def choose_candidate(
-    scores: np.ndarray, distance: np.ndarray, trust_radius: float | None, min_gain: float = 0.0
-) -> int:
+def choose_candidate(scores: np.ndarray, distance: np.ndarray, trust_radius: float | None, min_gain: float) -> int:
     """Index of the best eligible candidate (`eligible_candidates`), or 0, the base action.
 
     `scores` is (n,) for one critic or (members, n) for an ensemble (`critics.CriticEnsemble.member_q`).

@@ -26,6 +26,7 @@ from elegant.policies.protocol import (
     ACTION_DIM,
     ACTION_HIGH,
     ACTION_LOW,
+    DEFAULT_NOISE_SCALE,
     GaussianCandidates,
     Observation,
     Policy,
@@ -83,7 +84,7 @@ class PolicyAdapter:
     name = "policy"
     candidate_source = "Gaussian noise"  # where JITI's candidates come from (a run's config records it)
 
-    def __init__(self, *, noise_scale: float = 0.1, seed: int = 0) -> None:
+    def __init__(self, *, noise_scale: float = DEFAULT_NOISE_SCALE, seed: int = 0) -> None:
         self.noise = GaussianCandidates(noise_scale, seed)
         self.metadata: Mapping[str, Any] | None = None
         self._last_obs: dict[str, np.ndarray] | None = None
@@ -145,7 +146,9 @@ class CallablePolicy(PolicyAdapter):
 
     name = "callable policy"
 
-    def __init__(self, fn: Callable[[Observation], Any], *, noise_scale: float = 0.1, seed: int = 0) -> None:
+    def __init__(
+        self, fn: Callable[[Observation], Any], *, noise_scale: float = DEFAULT_NOISE_SCALE, seed: int = 0
+    ) -> None:
         super().__init__(noise_scale=noise_scale, seed=seed)
         self.fn = fn
         sampler = getattr(fn, "sample", None)
@@ -224,7 +227,7 @@ class LeRobotPolicy(PolicyAdapter):
         wrist_image_key: str = "observation.images.image2",
         state_fn: StateFn | None = None,
         device: str = "cpu",
-        noise_scale: float = 0.1,
+        noise_scale: float = DEFAULT_NOISE_SCALE,
         seed: int = 0,
     ) -> None:
         import torch
@@ -280,7 +283,7 @@ class TorchRLPolicy(PolicyAdapter):
         action_key: str | tuple[str, ...] = "action",
         instruction_key: str = "language_instruction",
         state_fn: StateFn | None = None,
-        noise_scale: float = 0.1,
+        noise_scale: float = DEFAULT_NOISE_SCALE,
         seed: int = 0,
     ) -> None:
         import torch
@@ -344,7 +347,7 @@ def _is_full_policy(obj: Any) -> bool:
         return False
 
 
-def as_policy(obj: Any, *, noise_scale: float = 0.1, seed: int = 0) -> Policy:
+def as_policy(obj: Any, *, noise_scale: float = DEFAULT_NOISE_SCALE, seed: int = 0) -> Policy:
     """Adapt a supported object to the `Policy` protocol (objects that already implement it pass through).
 
     Checked in order: a full `Policy`; a TorchRL `TensorDictModule`; an object with `select_action`

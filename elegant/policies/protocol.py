@@ -23,7 +23,15 @@ ACTION_HIGH = 1.0
 # how a BC policy acts: its mixture's most likely mean, a draw, a drawn component's mean (elegant.policies.bc_policy)
 PolicyAct = Literal["mode", "sample", "component"]
 POLICY_ACTS: tuple[str, ...] = get_args(PolicyAct)
+POLICY_ACT_HELP = (
+    "how the BC policy acts: its mixture's most likely mean (mode, deterministic), a draw from the mixture at every "
+    "decision (sample, as LIBERO runs its BC policies) or the mean of a drawn component (component, LIBERO's "
+    "low_eval_noise)"
+)
 DEFAULT_POLICY_ACT = "mode"  # also what runs, gates and chains recorded before the act was a setting
+# std of the Gaussian candidates around a deterministic policy's action: declared once for every adapter and
+# for `JITIConfig.noise_scale`
+DEFAULT_NOISE_SCALE = 0.1
 
 Observation = Mapping[str, np.ndarray]
 
@@ -120,7 +128,7 @@ class GaussianCandidates:
     the policy would have done. The generator is seeded, so the same seed gives the same candidates.
     """
 
-    def __init__(self, scale: float = 0.1, seed: int = 0) -> None:
+    def __init__(self, scale: float = DEFAULT_NOISE_SCALE, seed: int = 0) -> None:
         if not scale >= 0:
             raise UserInputError(f"candidate noise scale must be >= 0, got {scale!r}")
         self.scale = float(scale)
@@ -137,12 +145,5 @@ class GaussianCandidates:
 
 
 def add_policy_act_argument(parser: argparse.ArgumentParser) -> None:
-    """`--policy-act`, shared by `elegant eval`, `elegant rollouts` and the chain's benchmarks."""
-    parser.add_argument(
-        "--policy-act",
-        choices=POLICY_ACTS,
-        default=DEFAULT_POLICY_ACT,
-        help="how the BC policy acts: its mixture's most likely mean (mode, deterministic), a draw from the "
-        "mixture at every decision (sample, as LIBERO runs its BC policies) or the mean of a drawn "
-        "component (component, LIBERO's low_eval_noise)",
-    )
+    """`--policy-act` for a command without a config (`elegant serve-policy`), with the configs' help."""
+    parser.add_argument("--policy-act", choices=POLICY_ACTS, default=DEFAULT_POLICY_ACT, help=POLICY_ACT_HELP)
