@@ -11,7 +11,6 @@ thread).
 
 from __future__ import annotations
 
-import io
 import math
 import os
 from collections.abc import Mapping
@@ -25,7 +24,8 @@ from threadpoolctl import ThreadpoolController
 
 from annotations import FeatureEncoder, GoalContext, encoder_from_dict
 from base_suites.runtime.errors import UserInputError
-from base_suites.runtime.io import atomic_write, atomic_write_json, library_versions, read_artifact_config
+from base_suites.runtime.io import atomic_write_json, library_versions, read_artifact_config
+from base_suites.runtime.training import atomic_torch_save
 from base_suites.stack import cpu_record
 from critics.networks import TwinQNetwork
 from critics.normalization import Normalization, clip_normalised_
@@ -33,13 +33,6 @@ from critics.normalization import Normalization, clip_normalised_
 CRITIC_FORMAT = "libero-elegant/critic/1"
 WEIGHTS_FILE = "critic.pt"
 CONFIG_FILE = "critic.json"
-
-
-def atomic_torch_save(path: str, obj: Any) -> None:
-    """torch.save through `base_suites.runtime.io`: a kill mid-write leaves the previous file intact."""
-    buffer = io.BytesIO()
-    torch.save(obj, buffer)
-    atomic_write(path, buffer.getvalue())
 
 
 @dataclass(frozen=True)

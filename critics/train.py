@@ -26,17 +26,16 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 from torchrl.objectives import SoftUpdate
-from tqdm.auto import tqdm
 
 from base_suites.runtime.compute import ComputeConfig, device_kind, refuse_other_device, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, library_versions
-from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
-from base_suites.runtime.outputs import check_output, remove_results
+from base_suites.runtime.outputs import check_output
 from base_suites.runtime.settings import with_overrides
+from base_suites.runtime.training import Progress, Trainer
 from base_suites.stack import cpu_record
-from critics.artifact import WEIGHTS_FILE, atomic_torch_save, save_critic
+from critics.artifact import WEIGHTS_FILE, save_critic
 from critics.config import TrainConfig
 from critics.data import TransitionData, load_transitions, make_replay_buffer
 from critics.divergence import refuse_divergence
@@ -132,18 +131,6 @@ class _Run:
             torch.cuda.set_rng_state(state["cuda_rng"], self.device)
 
 
-def _read_checkpoint(path: str) -> dict[str, Any]:
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # truncated or garbled files raise assorted errors from torch's unpickler/zip reader
-        raise UserInputError(
-            f"{path}: corrupt checkpoint ({exc.__class__.__name__}); delete it to start over"
-        ) from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise UserInputError(f"{path}: not a critic training checkpoint (field 'format' is not {CHECKPOINT_FORMAT!r})")
-    return state
-
-
 def _check_resumable(
     path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str, device: torch.device
 ) -> None:
@@ -215,76 +202,88 @@ def train_critic(
     cfg.validate()
     device = use_compute(compute or ComputeConfig(), "train-critic")
     check_output(out, "dir", resume=resume, overwrite=overwrite, results=(CHECKPOINT_FILE, WEIGHTS_FILE))
-    ckpt_path = os.path.join(out, CHECKPOINT_FILE)
     data = load_transitions(cfg.paths, cfg)
-    with output_lock(out):  # one writer per critic directory
-        os.makedirs(out, exist_ok=True)  # only now: refused settings or data leave nothing behind
-        if overwrite:  # the earlier run's critic and checkpoint go before this run writes its own
-            remove_results(out, (CHECKPOINT_FILE, WEIGHTS_FILE))
-        fingerprint = data.fingerprint()
-        run = _Run(cfg, data, device)
-        start = 0
-        resumed_from = None
-        if resume and os.path.exists(ckpt_path):
-            state = _read_checkpoint(ckpt_path)
-            _check_resumable(ckpt_path, state, cfg, fingerprint, device)
-            if int(state["step"]) > cfg.steps:
-                raise UserInputError(
-                    f"{ckpt_path}: checkpoint is at step {state['step']}, beyond steps={cfg.steps}; ask for at least "
-                    "that many"
-                )
-            run.restore(state)
-            start = resumed_from = int(state["step"])
+    trainer = Trainer("train-critic", out, CHECKPOINT_FILE, (CHECKPOINT_FILE, WEIGHTS_FILE), cfg.steps)
+    return trainer.run(_CriticTraining(cfg, data, device, out), resume=resume, overwrite=overwrite, progress=progress)
 
-        metrics = _MetricsLog(os.path.join(out, METRICS_FILE), run.loss.out_keys, keep_until=resumed_from)
-        last: dict[str, float] = {}
-        began = time.perf_counter()
-        bar = tqdm(total=cfg.steps, initial=start, disable=not progress, desc="train-critic", unit="step")
-        for step in range(start + 1, cfg.steps + 1):
-            losses = run.step()
-            if step % cfg.log_every == 0 or step == cfg.steps:
-                last = {k: float(v.detach()) for k, v in losses.items()}
-                metrics.append(step, last)
-                bar.set_postfix(
-                    {
-                        k.removeprefix("loss_"): f"{last[k]:.3g}"
-                        for k in ("loss_qvalue", "loss_cql", "loss_actor", "alpha")
-                    }
-                )
-            if step % cfg.checkpoint_every == 0 or step == cfg.steps:
-                refuse_divergence(
-                    "train-critic", f"step {step}", {k: float(v.detach()) for k, v in losses.items()}, run.loss
-                )
-                atomic_torch_save(ckpt_path, run.state(step, cfg, fingerprint))
-            bar.update(1)
-        bar.close()
-        seconds = time.perf_counter() - began
 
+class _CriticTraining:
+    """train-critic's `Training`: its units are gradient steps; metrics.csv grows as it goes."""
+
+    def __init__(self, cfg: TrainConfig, data: TransitionData, device: torch.device, out: str) -> None:
+        self.cfg, self.data, self.out = cfg, data, out
+        self.fingerprint = data.fingerprint()
+        self.run = _Run(cfg, data, device)
+        self.resumed_from: int | None = None
+        self.losses: TensorDictBase | None = None
+        self.last: dict[str, float] = {}
+
+    def resume(self, state: dict[str, Any], path: str) -> int:
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise UserInputError(
+                f"{path}: not a critic training checkpoint (field 'format' is not {CHECKPOINT_FORMAT!r})"
+            )
+        _check_resumable(path, state, self.cfg, self.fingerprint, self.run.device)
+        if int(state["step"]) > self.cfg.steps:
+            raise UserInputError(
+                f"{path}: checkpoint is at step {state['step']}, beyond steps={self.cfg.steps}; ask for at least "
+                "that many"
+            )
+        self.run.restore(state)
+        self.resumed_from = int(state["step"])
+        return self.resumed_from
+
+    def begin(self, start: int) -> None:
+        self.metrics = _MetricsLog(os.path.join(self.out, METRICS_FILE), self.run.loss.out_keys, self.resumed_from)
+        self.began = time.perf_counter()
+
+    def unit(self, n: int, bar: Progress) -> None:
+        self.losses = self.run.step()
+        if n % self.cfg.log_every == 0 or n == self.cfg.steps:
+            self.last = {k: float(v.detach()) for k, v in self.losses.items()}
+            self.metrics.append(n, self.last)
+            shown = ("loss_qvalue", "loss_cql", "loss_actor", "alpha")
+            bar.set_postfix({k.removeprefix("loss_"): f"{self.last[k]:.3g}" for k in shown})
+        bar.update(1)
+
+    def checkpoint(self, n: int) -> dict[str, Any] | None:
+        if n % self.cfg.checkpoint_every and n != self.cfg.steps:
+            return None
+        values = {k: float(v.detach()) for k, v in self.losses.items()}
+        refuse_divergence("train-critic", f"step {n}", values, self.run.loss)
+        return self.run.state(n, self.cfg, self.fingerprint)
+
+    def checkpointed(self, n: int) -> None:
+        pass
+
+    def finish(self, start: int) -> dict[str, Any]:
+        seconds = time.perf_counter() - self.began
+        cfg, data = self.cfg, self.data
         save_critic(
-            out,
-            run.loss.get_stateful_net("qvalue_network"),
+            self.out,
+            self.run.loss.get_stateful_net("qvalue_network"),
             data.encoder,
             data.normalization,
             gamma=data.gamma,
             chunk=data.chunk,
             training={
                 **asdict(cfg),
-                "fingerprint": fingerprint,
+                "fingerprint": self.fingerprint,
                 "transitions": len(data.transitions),
-                "device": run.device_kind,
+                "device": self.run.device_kind,
             },
         )
         trained = max(cfg.steps - start, 0)
         return {
-            "out": out,
+            "out": self.out,
             "steps": cfg.steps,
-            "resumed_from": resumed_from,
+            "resumed_from": self.resumed_from,
             "transitions": len(data.transitions),
             "demos": data.n_demos,
             "tasks": data.encoder.tasks,
             "gamma": data.gamma,
             "seconds": seconds,
             "steps_per_second": trained / seconds if trained and seconds > 0 else None,
-            "device": run.device_kind,
-            "final": last,
+            "device": self.run.device_kind,
+            "final": self.last,
         }

@@ -236,7 +236,7 @@ def test_refusals(trained, annotated, tmp_path):
         train_critic([annotated], run, steps=4, resume=True, seed=1, **TINY)
     with open(os.path.join(run, "checkpoint.pt"), "r+b") as f:
         f.truncate(100)
-    with pytest.raises(UserInputError, match="checkpoint.pt: corrupt checkpoint"):
+    with pytest.raises(UserInputError, match="checkpoint.pt: unreadable checkpoint"):
         train_critic([annotated], run, steps=4, resume=True, **TINY)
     with pytest.raises(UserInputError, match="steps must be a positive integer"):
         train_critic([annotated], str(tmp_path / "zero"), steps=0, **TINY)

@@ -18,6 +18,7 @@ import torch
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, library_versions, read_artifact_config
+from base_suites.runtime.training import torch_bytes
 from base_suites.stack import cpu_record
 from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_model import BCNet
@@ -26,12 +27,6 @@ from elegant.policies.protocol import ACTION_DIM
 ARTIFACT_FORMAT = "libero-elegant-bc/1"
 MODEL_FILE = "model.pt"
 CONFIG_FILE = "config.json"
-
-
-def torch_bytes(obj: Any) -> bytes:
-    buffer = io.BytesIO()
-    torch.save(obj, buffer)
-    return buffer.getvalue()
 
 
 def write_artifact(out: str, net: BCNet, features: BCFeatures, model: dict[str, Any], training: dict[str, Any]) -> None:

@@ -23,23 +23,22 @@ import math
 import os
 import time
 from collections.abc import Callable, Collection, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from annotations import TaskFeatureEncoder
 from base_suites.runtime.compute import ComputeConfig, device_kind, refuse_other_device, use_compute
 from base_suites.runtime.errors import UserInputError
-from base_suites.runtime.io import atomic_write, changed_fields
-from base_suites.runtime.locks import output_lock
+from base_suites.runtime.io import changed_fields
 from base_suites.runtime.migrations import added_later
-from base_suites.runtime.outputs import check_output, remove_results
+from base_suites.runtime.outputs import check_output
 from base_suites.runtime.settings import with_overrides
+from base_suites.runtime.training import Progress, Trainer
 from critics.divergence import refuse_divergence
-from elegant.policies.bc_artifact import MODEL_FILE, read_artifact, torch_bytes, write_artifact
+from elegant.policies.bc_artifact import MODEL_FILE, read_artifact, write_artifact
 from elegant.policies.bc_config import BCConfig
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_features import BCFeatures
@@ -105,27 +104,13 @@ def demo_batches(
     return [windows.batch(index) for index in order.split(int(batch_size))]
 
 
-def _save_checkpoint(path: str, state: dict[str, Any]) -> None:
-    atomic_write(path, torch_bytes(state))
-
-
-def _load_checkpoint(path: str, fingerprint: dict[str, Any]) -> dict[str, Any]:
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # a truncated or foreign file surfaces as many exception types
-        raise UserInputError(
-            f"{path}: unreadable checkpoint ({exc.__class__.__name__}); delete it or train without resume"
-        ) from None
+def _check_fingerprint(path: str, state: dict[str, Any], fingerprint: dict[str, Any]) -> None:
+    """Refuse a checkpoint of other data, settings or starting point, naming the first field that differs."""
     # checkpoints from before the success filter trained on every demo
-    changed = changed_fields(
-        state.get("fingerprint") if isinstance(state, dict) else None,
-        fingerprint,
-        added=added_later("policy checkpoint"),
-    )
+    changed = changed_fields(state.get("fingerprint"), fingerprint, added=added_later("policy checkpoint"))
     if changed:
         key, was, now = changed[0]
         raise UserInputError(f"{path}: cannot resume, field {key!r} was {was!r} and is now {now!r}")
-    return state
 
 
 def snapshot_dir(out: str, epoch: int) -> str:
@@ -329,111 +314,146 @@ def train_policy(
         raise UserInputError(f"{tune.pretrained}: no layer of this policy fits the network trained here")
     masks = None if tune.masks is None else tune.masks.bind(net, init_from or out)
     net.to(device)
-    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps_per_epoch = math.ceil(len(windows) / cfg.batch_size)
-    scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=cfg.epochs * steps_per_epoch)
-    generator = torch.Generator().manual_seed(cfg.seed)
-    losses: list[float] = []
 
-    checkpoint = os.path.join(out, CHECKPOINT_FILE)
-    with output_lock(out):  # one writer per policy directory
-        os.makedirs(out, exist_ok=True)  # only now: a refused input leaves nothing behind
-        if overwrite:  # the earlier run's policy and checkpoint go before this run writes its own
-            remove_results(out, (CHECKPOINT_FILE, MODEL_FILE))
-        fingerprint = {"config": asdict(cfg), "data": data.files, **origin}
-        kind = device_kind(device)
-
-        def publish(directory: str) -> None:
-            """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
-            os.makedirs(directory, exist_ok=True)
-            training = {
-                "config": asdict(cfg),
-                "data": data.files,
-                "loss_history": list(losses),
-                "num_samples": len(windows),
-                **origin,
-                "init_from_path": None if init_from is None else os.path.abspath(init_from),
-                "device": kind,
-            }
-            write_artifact(directory, net, features, model_spec, training)
-
-        start_epoch = 0
-        if resume and os.path.exists(checkpoint):
-            state = _load_checkpoint(checkpoint, fingerprint)
-            refuse_other_device(checkpoint, state.get("device", "cpu"), device)
-            net.load_state_dict(state["model"])
-            optimizer.load_state_dict(state["optimizer"])
-            scheduler.load_state_dict(state["scheduler"])
-            generator.set_state(state["generator"])
-            losses, start_epoch = list(state["losses"]), int(state["epoch"])
-        if start_epoch == 0 and 0 in snapshots:
-            publish(snapshot_dir(out, 0))
-
-        bar = tqdm(
-            total=cfg.epochs * steps_per_epoch,
-            initial=start_epoch * steps_per_epoch,
-            disable=not progress,
-            desc="train-policy",
-            unit="batch",
-        )
-        restore_frozen = None if masks is None else masks.freeze(net)
-        anchor = None if tune.anchor is None else tune.anchor.to(device)
-        net.train()
-        for epoch in range(start_epoch, cfg.epochs):
-            total = 0.0
-            for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
-                x, actions = windows.batch(index, cfg.obs_noise, generator)
-                if replay is not None:
-                    drawn = torch.randint(len(replay), (len(index),), generator=generator)
-                    x, actions = (
-                        torch.cat(pair) for pair in zip((x, actions), replay.batch(drawn, cfg.obs_noise, generator))
-                    )
-                loss = net.nll(x.to(device), actions.to(device)).mean()
-                objective = loss if anchor is None else loss + anchor.penalty(net)
-                optimizer.zero_grad(set_to_none=True)
-                objective.backward()
-                if cfg.grad_clip > 0:
-                    torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
-                optimizer.step()
-                if restore_frozen is not None:
-                    restore_frozen()
-                scheduler.step()
-                total += loss.item() * len(index)
-                bar.update(1)
-            losses.append(total / len(windows))
-            bar.set_postfix(epoch=epoch + 1, nll=f"{losses[-1]:.3f}")
-            refuse_divergence("train-policy", f"epoch {epoch + 1}", {"nll": losses[-1]}, net)
-            if epoch + 1 in snapshots:  # before the checkpoint: a crash in between redoes this epoch and rewrites it
-                publish(snapshot_dir(out, epoch + 1))
-            _save_checkpoint(
-                checkpoint,
-                {
-                    "epoch": epoch + 1,
-                    "model": net.state_dict(),
-                    "optimizer": optimizer.state_dict(),
-                    "scheduler": scheduler.state_dict(),
-                    "generator": generator.get_state(),
-                    "losses": losses,
-                    "fingerprint": fingerprint,
-                    "device": kind,
-                },
-            )
-            if on_epoch_end is not None:
-                on_epoch_end({"epoch": epoch + 1, "nll": losses[-1]})
-        bar.close()
-        net.eval()
-
-        result = {
-            "out": out,
-            "epochs": cfg.epochs,
-            "resumed_from_epoch": start_epoch,
-            "loss_history": losses,
-            "final_nll": losses[-1],
-            "num_demos": len(data.episodes),
+    optimizer = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    training = _PolicyTraining(
+        cfg=cfg,
+        out=out,
+        net=net,
+        device=device,
+        windows=windows,
+        replay=replay,
+        optimizer=optimizer,
+        scheduler=torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=cfg.epochs * steps_per_epoch),
+        generator=torch.Generator().manual_seed(cfg.seed),
+        masks=masks,
+        anchor=None if tune.anchor is None else tune.anchor.to(device),
+        snapshots=snapshots,
+        on_epoch_end=on_epoch_end,
+        fingerprint={"config": asdict(cfg), "data": data.files, **origin},
+        artifact=lambda losses: {
+            "config": asdict(cfg),
+            "data": data.files,
+            "loss_history": list(losses),
             "num_samples": len(windows),
-            "tasks": list(features.encoder.tasks),
-            "seconds": time.perf_counter() - started,
-            "device": kind,
+            **origin,
+            "init_from_path": None if init_from is None else os.path.abspath(init_from),
+            "device": device_kind(device),
+        },
+        publish_model=lambda directory, training: write_artifact(directory, net, features, model_spec, training),
+        summary={"num_demos": len(data.episodes), "tasks": list(features.encoder.tasks), "started": started},
+    )
+    trainer = Trainer(
+        "train-policy", out, CHECKPOINT_FILE, (CHECKPOINT_FILE, MODEL_FILE), cfg.epochs, steps_per_epoch, "batch"
+    )
+    return trainer.run(training, resume=resume, overwrite=overwrite, progress=progress)
+
+
+@dataclass
+class _PolicyTraining:
+    """train-policy's `Training`: its units are epochs, each a seeded shuffle of every sample in batches
+    (joined by as many replayed samples with ER, penalised with EWC, with PackNet's frozen weights kept);
+    a snapshot epoch is published before its checkpoint, so a crash in between redoes the epoch and
+    rewrites the snapshot."""
+
+    cfg: BCConfig
+    out: str
+    net: BCNet
+    device: torch.device
+    windows: _Windows
+    replay: _Windows | None
+    optimizer: torch.optim.Optimizer
+    scheduler: Any
+    generator: torch.Generator
+    masks: WeightMasks | None
+    anchor: ElasticAnchor | None
+    snapshots: set[int]
+    on_epoch_end: Callable[[dict[str, Any]], None] | None
+    fingerprint: dict[str, Any]
+    artifact: Callable[[list[float]], dict[str, Any]]  # the training record a published policy holds
+    publish_model: Callable[[str, dict[str, Any]], None]
+    summary: dict[str, Any]
+    losses: list[float] = field(default_factory=list)
+
+    def publish(self, directory: str) -> None:
+        """Write the network as it is now as a policy directory (the final one, or a snapshot)."""
+        os.makedirs(directory, exist_ok=True)
+        self.publish_model(directory, self.artifact(self.losses))
+
+    def resume(self, state: dict[str, Any], path: str) -> int:
+        _check_fingerprint(path, state, self.fingerprint)
+        refuse_other_device(path, state.get("device", "cpu"), self.device)
+        self.net.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scheduler.load_state_dict(state["scheduler"])
+        self.generator.set_state(state["generator"])
+        self.losses = list(state["losses"])
+        return int(state["epoch"])
+
+    def begin(self, start: int) -> None:
+        if start == 0 and 0 in self.snapshots:
+            self.publish(snapshot_dir(self.out, 0))
+        self.restore_frozen = None if self.masks is None else self.masks.freeze(self.net)
+        self.net.train()
+
+    def unit(self, n: int, bar: Progress) -> None:
+        cfg, windows, replay, generator = self.cfg, self.windows, self.replay, self.generator
+        total = 0.0
+        for index in torch.randperm(len(windows), generator=generator).split(cfg.batch_size):
+            x, actions = windows.batch(index, cfg.obs_noise, generator)
+            if replay is not None:
+                drawn = torch.randint(len(replay), (len(index),), generator=generator)
+                x, actions = (
+                    torch.cat(pair) for pair in zip((x, actions), replay.batch(drawn, cfg.obs_noise, generator))
+                )
+            loss = self.net.nll(x.to(self.device), actions.to(self.device)).mean()
+            objective = loss if self.anchor is None else loss + self.anchor.penalty(self.net)
+            self.optimizer.zero_grad(set_to_none=True)
+            objective.backward()
+            if cfg.grad_clip > 0:
+                torch.nn.utils.clip_grad_norm_(self.net.parameters(), cfg.grad_clip)
+            self.optimizer.step()
+            if self.restore_frozen is not None:
+                self.restore_frozen()
+            self.scheduler.step()
+            total += loss.item() * len(index)
+            bar.update(1)
+        self.losses.append(total / len(windows))
+        bar.set_postfix(epoch=n, nll=f"{self.losses[-1]:.3f}")
+        refuse_divergence("train-policy", f"epoch {n}", {"nll": self.losses[-1]}, self.net)
+        if n in self.snapshots:
+            self.publish(snapshot_dir(self.out, n))
+
+    def checkpoint(self, n: int) -> dict[str, Any]:
+        return {
+            "epoch": n,
+            "model": self.net.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "scheduler": self.scheduler.state_dict(),
+            "generator": self.generator.get_state(),
+            "losses": self.losses,
+            "fingerprint": self.fingerprint,
+            "device": device_kind(self.device),
         }
-        publish(out)
+
+    def checkpointed(self, n: int) -> None:
+        if self.on_epoch_end is not None:
+            self.on_epoch_end({"epoch": n, "nll": self.losses[-1]})
+
+    def finish(self, start: int) -> dict[str, Any]:
+        self.net.eval()
+        result = {
+            "out": self.out,
+            "epochs": self.cfg.epochs,
+            "resumed_from_epoch": start,
+            "loss_history": self.losses,
+            "final_nll": self.losses[-1],
+            "num_demos": self.summary["num_demos"],
+            "num_samples": len(self.windows),
+            "tasks": self.summary["tasks"],
+            "seconds": time.perf_counter() - self.summary["started"],
+            "device": device_kind(self.device),
+        }
+        self.publish(self.out)
         return result
