@@ -18,6 +18,7 @@ from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.jobs import Workers
 from base_suites.runtime.locks import output_lock
 from elegant.chain_config import ChainConfig, check_chain_settings, load_recipe
+from elegant.chain_stages import ChainPaths, chain_stages, run_stages
 
 
 def init_split(cfg: ChainConfig) -> tuple[list[int] | None, list[int] | None]:
@@ -73,134 +74,23 @@ def run_chain(
 def _run_chain(
     out: str, config: ChainConfig, progress: bool, workers: int | Workers, compute: ComputeConfig
 ) -> dict[str, Any]:
-    """`run_chain`'s work, with the chain directory's lock held."""
-    from annotations import annotate_file
-    from annotations.collect import collect_demos
-    from critics import train_critic
-    from elegant.evaluation.rollouts import collect_rollouts
-    from elegant.evaluation.runner import evaluate
-    from elegant.intervention.gate import write_gate
-    from elegant.intervention.modes import jiti_mode
-    from elegant.policies import train_policy
+    """`run_chain`'s work, with the chain directory's lock held: its declared stages (`chain_stages`),
+    then the comparison of every mode's runs."""
     from elegant.reporting.report import compare_runs
 
     cfg = config
     os.makedirs(out, exist_ok=True)
     check_chain_settings(out, cfg)
-    tasks = list(cfg.tasks) if cfg.tasks is not None else None
-    demos = {s: os.path.join(out, f"demos_{s}.hdf5") for s in cfg.suites}
-    annotated = {s: os.path.join(out, f"annotated_{s}.hdf5") for s in cfg.suites}
-    rollouts = {s: os.path.join(out, f"rollouts_{s}.hdf5") for s in cfg.suites}
-    annotated_rollouts = {s: os.path.join(out, f"annotated_rollouts_{s}.hdf5") for s in cfg.suites}
-    policy_dir = os.path.join(out, "policy")
-    members = range(cfg.critic_members)
-    critic_dirs = [os.path.join(out, "critic" if len(members) == 1 else f"critic_{k + 1}") for k in members]
-    rollout_starts, eval_starts = init_split(cfg)
-    runs = {m: {s: os.path.join(out, f"eval_{m}_{s}") for s in cfg.suites} for m in cfg.modes}
+    paths = ChainPaths(out, cfg.suites, cfg.modes, cfg.critic_members)
 
     def say(step: str) -> None:
         if progress:
             print(f"[chain] {step}", flush=True)
 
-    for suite in cfg.suites:
-        if not os.path.exists(demos[suite]):
-            say(f"demos: {cfg.demos} {cfg.quality}-quality expert episodes per task of {suite}")
-            collect_demos(
-                suite,
-                tasks,
-                demos[suite],
-                resume=True,
-                progress=progress,
-                workers=workers,
-                episodes=cfg.demos,
-                quality=cfg.quality,
-                seed=cfg.seed,
-            )
-        if not os.path.exists(annotated[suite]):
-            say(f"annotate {suite}: ITC labels by replaying the demos in the simulator")
-            annotate_file(demos[suite], annotated[suite], resume=True, progress=progress, workers=workers)
-    if not os.path.exists(os.path.join(policy_dir, "config.json")):
-        say(f"train policy: BC with a GMM head, {cfg.policy.epochs} epochs")
-        train_policy(
-            list(demos.values()),
-            policy_dir,
-            cfg.policy_config(),
-            successful_only=cfg.successful_only,
-            resume=True,
-            progress=progress,
-            compute=compute,
-        )
-    # a critic is trained if any mode needs one; base alone (the policy benchmark) only logs its scores
-    needs_critic = any(jiti_mode(m).needs_critic for m in cfg.modes)
-    critic_data = list(annotated.values())
-    rollout_suites = cfg.suites if needs_critic and cfg.critic_rollouts else ()
-    for suite in rollout_suites:
-        if not os.path.exists(rollouts[suite]):
-            recording = cfg.rollout_config(rollout_starts)
-            if recording.explore_at is not None:
-                how = f"branching at one of steps {list(recording.explore_at)}"
-            else:
-                how = f"exploring at {recording.explore:.0%} of decisions"
-            say(f"rollouts: {cfg.critic_rollouts} episodes per task of {suite}, {how}")
-            collect_rollouts(
-                suite, tasks, policy_dir, rollouts[suite], recording, resume=True, progress=progress, workers=workers
-            )
-        if not os.path.exists(annotated_rollouts[suite]):
-            say(f"annotate the rollouts of {suite}")
-            annotate_file(rollouts[suite], annotated_rollouts[suite], resume=True, progress=progress, workers=workers)
-        critic_data.append(annotated_rollouts[suite])
-    for k, critic_dir in zip(members, critic_dirs):
-        if needs_critic and not os.path.exists(os.path.join(critic_dir, "critic.json")):
-            training = cfg.critic_config(k)
-            which = (
-                f" member {k + 1} of {len(members)} (bootstrap resample {training.bootstrap})"
-                if len(members) > 1
-                else ""
-            )
-            say(f"train critic{which}: Cal-QL, {training.steps} steps")
-            train_critic(critic_data, critic_dir, training, resume=True, progress=progress, compute=compute)
-    critic = ",".join(critic_dirs) if needs_critic else None
-    gates = {s: None for s in cfg.suites}
-    if cfg.jiti_gate and "jiti" in cfg.modes:
-        validated = ("base", "jiti", *(("always",) if "always" in cfg.modes else ()))
-        for suite in cfg.suites:
-            episodes = cfg.evaluation.episodes
-            say(f"validate {', '.join(validated)} on {suite}'s rollout starts: {episodes} episodes per task each")
-            validation = {}
-            for mode in validated:
-                validation[mode] = os.path.join(out, f"validate_{mode}_{suite}")
-                evaluate(
-                    suite,
-                    tasks,
-                    policy_dir,
-                    critic,
-                    cfg.eval_config(mode, rollout_starts),
-                    out=validation[mode],
-                    resume=True,
-                    progress=progress,
-                    workers=workers,
-                    compute=compute,
-                )
-            gates[suite] = os.path.join(out, f"gate_{suite}.json")
-            # derived again from the same validation runs on every resume: the same file
-            always = validation.get("always")
-            write_gate(validation["base"], validation["jiti"], gates[suite], always_run=always, overwrite=True)
-    summaries: dict[str, dict[str, dict[str, Any]]] = {m: {} for m in cfg.modes}
-    for mode in cfg.modes:
-        for suite in cfg.suites:
-            say(f"evaluate {mode} on {suite}: {cfg.evaluation.episodes} episodes per task")
-            summaries[mode][suite] = evaluate(
-                suite,
-                tasks,
-                policy_dir,
-                critic,
-                cfg.eval_config(mode, eval_starts, gates[suite] if mode == "jiti" else None),
-                out=runs[mode][suite],
-                resume=True,
-                progress=progress,
-                workers=workers,
-                compute=compute,
-            )
+    stages = chain_stages(paths, cfg, init_split(cfg), progress=progress, workers=workers, compute=compute)
+    done = run_stages(stages, say)  # the evaluations always run (resuming), so each returns its summary
+    runs = paths.runs
+    summaries = {m: {s: done[f"eval {m} {s}"] for s in cfg.suites} for m in cfg.modes}
     report_dir = os.path.join(out, "report")
     compare_runs([runs[m][s] for s in cfg.suites for m in cfg.modes], report_dir)
     result: dict[str, Any] = {m: _pooled(list(summaries[m].values())) for m in cfg.modes}
