@@ -31,7 +31,8 @@ import torch
 
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import read_json_file
-from elegant.evaluation.lifelong_algos import PACKNET_MASKS_FILE, stage_policy_config
+from elegant.evaluation.lifelong_algos.packnet import PACKNET_MASKS_FILE
+from elegant.evaluation.lifelong_run import stage_policy_config
 from elegant.policies.bc_artifact import read_artifact, write_artifact
 from elegant.policies.bc_data import DemoSet, load_demos
 from elegant.policies.bc_train import FineTuning, demo_batches, select_tasks, snapshot_dir, train_policy

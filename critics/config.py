@@ -6,9 +6,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal, get_args
 
-from annotations.features import ENCODINGS, Encoding
-from base_suites.runtime.errors import UserInputError, unknown_choice
-from base_suites.runtime.settings import setting
+from annotations.features import Encoding
+from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.settings import check_choices, setting
 
 # the violation penalty per step or per window; or an elegant success (`critics.data.load_transitions`)
 Reward = Literal["step", "segment", "elegant"]
@@ -94,14 +94,7 @@ class TrainConfig:
             raise UserInputError(f"train-critic: hidden must list positive layer widths, got {self.hidden!r}")
         if self.gamma is not None and not 0.0 < self.gamma < 1.0:
             raise UserInputError(f"train-critic: gamma must lie in (0, 1), got {self.gamma}")
-        if self.reward not in REWARDS:
-            raise unknown_choice("train-critic reward", self.reward, REWARDS)
-        if self.backup not in BACKUPS:
-            raise unknown_choice("train-critic backup", self.backup, BACKUPS)
-        if self.encoding not in ENCODINGS:
-            raise unknown_choice("train-critic encoding", self.encoding, ENCODINGS)
-        if self.value_loss not in VALUE_LOSSES:
-            raise unknown_choice("train-critic value_loss", self.value_loss, VALUE_LOSSES)
+        check_choices(self, "train-critic")
         if self.value_loss == "bce" and self.reward != "elegant":
             raise UserInputError(
                 "train-critic: value_loss 'bce' needs returns in [0, 1], i.e. reward 'elegant' (got reward "

@@ -208,7 +208,8 @@ def test_packnet_evaluates_each_earlier_task_with_the_weights_of_tasks_up_to_it(
     """After task 2, task j (j < 2) is evaluated with a network holding only the weights of tasks 0..j: the
     weights of the later tasks, and the free ones, are zero; the rest and every bias are the kept network's.
     Its output is then that of the kept network with tasks j+1.. removed, and differs from task to task."""
-    from elegant.evaluation.lifelong_algos import PACKNET_MASKS_FILE, LifelongRun, PackNet
+    from elegant.evaluation.lifelong_algos.packnet import PACKNET_MASKS_FILE, PackNet
+    from elegant.evaluation.lifelong_run import LifelongRun
     from elegant.policies.bc_artifact import write_artifact
 
     net, features, artifact = read_artifact(first_task)

@@ -23,7 +23,7 @@ import typing
 from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
-from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.errors import UserInputError, unknown_choice
 
 _SCALARS = (int, float, str)
 
@@ -36,13 +36,15 @@ def setting(
     metavar: str | None = None,
     factory: Callable[[], Any] | None = None,
     parse: Callable[[str], Any] | None = None,
-    choices: tuple[str, ...] | None = None,
+    choices: Callable[[], tuple[str, ...]] | None = None,
+    label: str | None = None,
 ) -> Any:
     """A config field with the one-line help the CLI shows; `flag` names its option where the field's name
     would not, `factory` builds a mutable default, `parse` reads the option's text where the type does not
-    say how (e.g. `index_list`), `choices` lists a `str` field's values where a registry, not a `Literal`,
-    holds them."""
-    metadata = {"help": help, "flag": flag, "metavar": metavar, "parse": parse, "choices": choices}
+    say how (e.g. `index_list`), `choices` returns a `str` field's values where a registry, not a `Literal`,
+    holds them (asked each time, so a value registered later counts), `label` names the field in a refusal
+    (`check_choices`) where its name would not."""
+    metadata = {"help": help, "flag": flag, "metavar": metavar, "parse": parse, "choices": choices, "label": label}
     if factory is not None:
         return dataclasses.field(default_factory=factory, metadata=metadata)
     return dataclasses.field(default=default, metadata=metadata)
@@ -183,7 +185,7 @@ def _add_option(
         parser.add_argument(switch, dest=dest, action=argparse.BooleanOptionalAction, default=None, help=help_text)
         return
     kind, choices = (f.metadata["parse"], None) if f.metadata.get("parse") else _option(annotation)
-    choices = f.metadata.get("choices") or choices
+    choices = field_choices(f, annotation) if f.metadata.get("choices") else choices
     parser.add_argument(
         flag or "--" + name,
         dest=dest,
@@ -193,6 +195,27 @@ def _add_option(
         metavar=f.metadata.get("metavar") or (None if choices else f.name.upper()),
         help=help_text,
     )
+
+
+def field_choices(f: dataclasses.Field, annotation: Any) -> tuple[Any, ...] | None:
+    """The values a field may take: its `choices`, or its `Literal`'s (None: any value of its type)."""
+    if f.metadata.get("choices"):
+        return tuple(f.metadata["choices"]())
+    bare = _bare(annotation)
+    return typing.get_args(bare) if typing.get_origin(bare) is Literal else None
+
+
+def check_choices(config: Any, where: str) -> None:
+    """Refuse, in one line, a field of `config` outside its choices (`field_choices`; None passes where the
+    field may be None): the one check of every config's named choices, so no config re-checks its own.
+    The line reads "unknown {where} {label} ..." with the field's `label` (default: its name)."""
+    hints = typing.get_type_hints(type(config))
+    for f in dataclasses.fields(config):
+        choices, value = field_choices(f, hints[f.name]), getattr(config, f.name)
+        if choices is None or value in choices or (value is None and _bare(hints[f.name]) is not hints[f.name]):
+            continue
+        label = " ".join(filter(None, (where, f.metadata.get("label") or f.name)))
+        raise unknown_choice(label, value, choices)
 
 
 def check_derived(config: Any, where: str) -> None:

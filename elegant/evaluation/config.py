@@ -3,16 +3,17 @@ JITI's own settings nested as a `JITIConfig` (docs/design.md, configuration)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, Literal, get_args
+from dataclasses import dataclass, make_dataclass
+from typing import Any, Literal
 
-from annotations.features import ENCODINGS, Encoding
+from annotations.features import Encoding
 from base_suites.env import ObsMode, RenderQuality
 from base_suites.runtime.errors import UserInputError, unknown_choice
-from base_suites.runtime.settings import index_list, nested, setting, with_overrides
+from base_suites.runtime.settings import check_choices, index_list, nested, setting, with_overrides
+from elegant.evaluation.lifelong_algos import algorithm_names, lifelong_algorithm, settings_fields
 from elegant.intervention.config import JITIConfig, candidates_setting, trust_radius_setting
 from elegant.policies.bc_config import DEFAULT_MODES
-from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACT_HELP, POLICY_ACTS, PolicyAct
+from elegant.policies.protocol import DEFAULT_POLICY_ACT, POLICY_ACT_HELP, PolicyAct
 
 
 def _render_quality_setting() -> Any:
@@ -31,6 +32,11 @@ def _vla_image_size_setting() -> Any:
         "with --obs vla: resize both images with padding to this side, as openpi's LIBERO client does (224) "
         "before it sends them (default: LIBERO's 256 px render)",
     )
+
+
+def _policy_act_setting() -> Any:
+    """`policy_act`, declared once for eval and rollouts."""
+    return setting(DEFAULT_POLICY_ACT, POLICY_ACT_HELP, label="policy act")
 
 
 def _replan_steps_setting() -> Any:
@@ -59,7 +65,7 @@ class EvalConfig:
     init_states: tuple[int, ...] | None = setting(
         None, "start only from these shipped init states, e.g. 25-49 (default: all)", parse=index_list
     )
-    policy_act: PolicyAct = setting(DEFAULT_POLICY_ACT, POLICY_ACT_HELP)
+    policy_act: PolicyAct = _policy_act_setting()
     replan_steps: int | None = _replan_steps_setting()
     gate: str | None = setting(
         None, "mode jiti: a file from `elegant gate`; each task runs in the mode it chose (base, jiti or always)"
@@ -77,8 +83,7 @@ class EvalConfig:
             raise UserInputError(f"seed must be >= 0, got {self.seed}")
         if self.max_steps is not None and not int(self.max_steps) >= 1:
             raise UserInputError(f"max_steps must be >= 1 (or None for the suite's horizon), got {self.max_steps}")
-        if self.policy_act not in POLICY_ACTS:
-            raise unknown_choice("policy act", self.policy_act, POLICY_ACTS)
+        check_choices(self, "")
         if self.replan_steps is not None and not int(self.replan_steps) >= 1:
             raise UserInputError(f"replan_steps must be >= 1, got {self.replan_steps}")
         if self.gate is not None and self.jiti.mode != "jiti":
@@ -123,7 +128,7 @@ class RolloutConfig:
     perturbation: str | None = setting(
         None, "as in eval; init@nudge moves the task objects up to 2 cm: starts beyond the shipped init states"
     )
-    policy_act: PolicyAct = setting(DEFAULT_POLICY_ACT, POLICY_ACT_HELP)
+    policy_act: PolicyAct = _policy_act_setting()
     replan_steps: int | None = _replan_steps_setting()
     obs: ObsMode = setting(
         "lowdim", "what the policy observes (as in eval, but not rgb: the file stores the state it needs)"
@@ -151,8 +156,7 @@ class RolloutConfig:
             raise UserInputError(f"rollouts: seed must be >= 0, got {self.seed}")
         if self.max_steps is not None and not int(self.max_steps) >= 1:
             raise UserInputError(f"rollouts: max_steps must be >= 1 (or None for the suite's), got {self.max_steps}")
-        if self.policy_act not in POLICY_ACTS:
-            raise unknown_choice("policy act", self.policy_act, POLICY_ACTS)
+        check_choices(self, "")
         if self.replan_steps is not None and not int(self.replan_steps) >= 1:
             raise UserInputError(f"replan_steps must be >= 1, got {self.replan_steps}")
 
@@ -208,8 +212,7 @@ class RobustnessConfig:
                 raise unknown_choice("robustness axis", axis, choices)
         if len(set(self.axes)) != len(self.axes):
             raise UserInputError(f"robustness: an axis is listed twice in {','.join(self.axes)}")
-        if self.variants not in ("generated", "shipped"):
-            raise unknown_choice("robustness variants", self.variants, ("generated", "shipped"))
+        check_choices(self, "robustness")
 
     def perturbations(self) -> dict[str, str]:
         """Each axis's perturbation spec, "ori" (no perturbation) first."""
@@ -217,13 +220,10 @@ class RobustnessConfig:
         return {"ori": "", **{axis: specs[axis] for axis in self.axes}}
 
 
-LifelongAlgo = Literal["seql", "er", "ewc", "packnet", "multitask"]
-LIFELONG_ALGOS: tuple[str, ...] = get_args(LifelongAlgo)
-
-
 @dataclass(frozen=True)
-class LifelongConfig:
-    """LIBERO's lifelong protocol as `elegant lifelong` runs it (`elegant.evaluation.lifelong`)."""
+class _LifelongProtocol:
+    """LIBERO's lifelong protocol as `elegant lifelong` runs it (`elegant.evaluation.lifelong`); every
+    algorithm's own settings join it in `LifelongConfig`."""
 
     epochs: int = setting(50, "training epochs per task")
     eval_every: int = setting(5, "evaluate the task being learned every E epochs (and before training on it)")
@@ -239,17 +239,11 @@ class LifelongConfig:
         "the stage policies' input: task-onehot (LIBERO's task embedding without semantics) or goal-relative "
         "(the state read against the task's goal; a goal-relative --pretrained policy then carries over whole)",
     )
-    algo: LifelongAlgo = setting(
+    algo: str = setting(
         "seql",
-        "LIBERO's lifelong algorithm: sequential fine-tuning, experience replay, elastic weight consolidation, "
-        "PackNet, or multitask training on all tasks at once (the upper bound)",
-    )
-    er_memory: int = setting(1000, "ER: samples kept per earlier task (LIBERO's n_memories)")
-    ewc_lambda: float = setting(5e4, "EWC: weight of the Fisher penalty (LIBERO's e_lambda)")
-    ewc_gamma: float = setting(0.9, "EWC: decay of earlier tasks' Fisher information per new task (LIBERO's gamma)")
-    packnet_prune: float = setting(0.75, "PackNet: fraction of a task's weights pruned after it (LIBERO's prune_perc)")
-    packnet_epochs: int | None = setting(
-        None, "PackNet: fine-tuning epochs after pruning (LIBERO's post_prune_epochs; default: --epochs)"
+        "LIBERO's lifelong algorithm: " + "; ".join(f"{n}: {lifelong_algorithm(n).title}" for n in algorithm_names()),
+        choices=algorithm_names,
+        label="algorithm",
     )
 
     def __post_init__(self) -> None:
@@ -257,17 +251,7 @@ class LifelongConfig:
 
     def algorithm_settings(self) -> dict[str, Any]:
         """The settings of the chosen algorithm only (a run records them; the others do not apply to it)."""
-        fields = {
-            "seql": (),
-            "multitask": (),
-            "er": ("er_memory",),
-            "ewc": ("ewc_lambda", "ewc_gamma"),
-            "packnet": ("packnet_prune", "packnet_epochs"),
-        }[self.algo]
-        settings = {name: getattr(self, name) for name in fields}
-        if self.algo == "packnet" and settings["packnet_epochs"] is None:
-            settings["packnet_epochs"] = self.epochs
-        return settings
+        return lifelong_algorithm(self.algo).record(self)
 
     def validate(self) -> None:
         """Refuse a non-positive count before any work starts (training comes before the first evaluation),
@@ -286,28 +270,20 @@ class LifelongConfig:
                 raise UserInputError(f"lifelong: {name} must be a positive integer, got {value!r}")
         if not int(self.seed) >= 0:
             raise UserInputError(f"lifelong: seed must be >= 0, got {self.seed}")
-        if self.algo not in LIFELONG_ALGOS:
-            raise unknown_choice("lifelong algorithm", self.algo, LIFELONG_ALGOS)
-        if self.encoding not in ENCODINGS:
-            raise unknown_choice("lifelong encoding", self.encoding, ENCODINGS)
-        if self.er_memory < 1 or int(self.er_memory) != self.er_memory:
-            raise UserInputError(f"lifelong: er_memory must be a positive integer, got {self.er_memory!r}")
-        if self.packnet_epochs is not None and (
-            int(self.packnet_epochs) != self.packnet_epochs or self.packnet_epochs < 1
-        ):
-            raise UserInputError(f"lifelong: packnet_epochs must be a positive integer, got {self.packnet_epochs!r}")
-        if self.packnet_epochs is not None and self.packnet_epochs % self.eval_every:
-            raise UserInputError(
-                f"lifelong: packnet_epochs ({self.packnet_epochs}) must be a multiple of eval_every ({self.eval_every})"
-            )
-        if not self.ewc_lambda >= 0:
-            raise UserInputError(f"lifelong: ewc_lambda must be >= 0, got {self.ewc_lambda!r}")
-        if not 0 <= self.ewc_gamma <= 1:
-            raise UserInputError(f"lifelong: ewc_gamma must be in [0, 1], got {self.ewc_gamma!r}")
-        if not 0 <= self.packnet_prune < 1:
-            raise UserInputError(f"lifelong: packnet_prune must be in [0, 1), got {self.packnet_prune!r}")
+        check_choices(self, "lifelong")
+        for name in algorithm_names():  # every algorithm's settings, as a typo in any would pass silently
+            algorithm = lifelong_algorithm(name)
+            if algorithm.Settings is not None:
+                algorithm.check(algorithm.settings_of(self), self)
         if self.epochs % self.eval_every:
             raise UserInputError(
                 f"lifelong: epochs ({self.epochs}) must be a multiple of eval_every ({self.eval_every}), "
                 "so that the last epoch is evaluated like LIBERO's 50 epochs every 5"
             )
+
+
+# The protocol's settings and every registered algorithm's (`elegant.evaluation.lifelong_algos`): ER's
+# memory is the field `er_memory` and the option `--er-memory`.
+LifelongConfig = make_dataclass("LifelongConfig", settings_fields(), bases=(_LifelongProtocol,), frozen=True)
+LifelongConfig.__module__ = __name__
+LifelongConfig.__doc__ = _LifelongProtocol.__doc__

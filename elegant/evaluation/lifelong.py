@@ -69,7 +69,8 @@ from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
-from elegant.evaluation.lifelong_algos import STAGED_ALGORITHMS, LifelongRun, Sequential, stage_policy_config
+from elegant.evaluation.lifelong_algos import LifelongAlgorithm, lifelong_algorithm
+from elegant.evaluation.lifelong_run import LifelongRun, stage_policy_config
 from elegant.evaluation.metrics import clamp_learning_curves, lifelong_metrics
 from elegant.policies.bc_artifact import read_artifact
 from elegant.policies.bc_config import BCConfig
@@ -78,15 +79,6 @@ from elegant.policies.bc_features import BCFeatures
 from elegant.policies.bc_train import FineTuning, network_spec, select_tasks, snapshot_dir
 from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, percent, save_figure
-
-# how reports name each algorithm (LIBERO's names)
-ALGORITHM_NAMES = {
-    "seql": "sequential fine-tuning (SeqL)",
-    "er": "experience replay (ER)",
-    "ewc": "elastic weight consolidation (EWC)",
-    "packnet": "PackNet",
-    "multitask": "multitask training (MTL, the upper bound)",
-}
 
 # the metrics a run reports, in LIBERO's order, and the mean success once every task is learned
 METRIC_KEYS = ("fwt", "nbt", "auc", "final_success")
@@ -206,7 +198,7 @@ def _stage_features(config: dict[str, Any], data: DemoSet) -> BCFeatures:
     return BCFeatures.fit(data, history=policy.history, min_std=policy.obs_min_std, encoding=config["encoding"])
 
 
-def _learn_and_measure(run: LifelongRun, algorithm: Sequential, k: int, C: np.ndarray, S: np.ndarray) -> int:
+def _learn_and_measure(run: LifelongRun, algorithm: LifelongAlgorithm, k: int, C: np.ndarray, S: np.ndarray) -> int:
     """Stage k of the protocol: train (unless done), fill C[:, k] and S[:, k, :k+1]; returns the kept epoch.
 
     C and S hold success in [0] and ESR in [1].
@@ -301,7 +293,8 @@ def run_lifelong(
     paths, keys = [os.fspath(p) for p in demo_paths], config["task_keys"]
     features = _stage_features(config, data)
     out = Path(out)
-    multitask = cfg.algo == "multitask"
+    algorithm = lifelong_algorithm(cfg.algo)
+    multitask = not algorithm.staged
     check_output(str(out), "dir", resume=resume)  # an unwritable OUT is refused before its lock is made
     with output_lock(out):  # one writer per lifelong run directory
         _prepare(out, config, resume)
@@ -309,14 +302,15 @@ def run_lifelong(
         C = np.zeros((2, K, E))
         S = np.full((2, K, K), np.nan)
         with tqdm(total=1 if multitask else K, desc=f"lifelong {cfg.algo}", unit="stage", disable=not progress) as bar:
-            run = LifelongRun(out, config, paths, data, features, bar.set_postfix_str, workers, compute)
+            settings = algorithm.read(config["algorithm_settings"])
+            run = LifelongRun(out, config, paths, data, features, bar.set_postfix_str, workers, compute, settings)
             if multitask:
                 kept_epochs = _learn_all_at_once(run, C, S)
                 bar.update(1)
             else:
                 kept_epochs = []
                 for k in range(K):
-                    kept_epochs.append(_learn_and_measure(run, STAGED_ALGORITHMS[cfg.algo], k, C, S))
+                    kept_epochs.append(_learn_and_measure(run, algorithm, k, C, S))
                     bar.update(1)
         kept = [config["eval_epochs"].index(e) for e in kept_epochs]
         result = {
@@ -417,7 +411,7 @@ def _write_report(out: Path, result: dict[str, Any], S: np.ndarray, C: np.ndarra
         for name, m in (("success", "metrics"), ("elegant success (ESR)", "metrics_elegant"))
     ]
     lines = [
-        f"# Lifelong learning: {cfg['suite']}, {ALGORITHM_NAMES[cfg['algorithm']]}",
+        f"# Lifelong learning: {cfg['suite']}, {lifelong_algorithm(cfg['algorithm']).title}",
         "",
         f"- tasks in learning order: {', '.join(labels)}",
         f"- {cfg['epochs']} epochs per task, evaluated at epochs {', '.join(map(str, cfg['eval_epochs']))}; "

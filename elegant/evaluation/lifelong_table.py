@@ -41,14 +41,14 @@ from base_suites.runtime.locks import output_lock
 from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.settings import with_overrides
-from elegant.evaluation.config import LIFELONG_ALGOS, LifelongConfig
+from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.lifelong import (
-    ALGORITHM_NAMES,
     METRIC_KEYS,
     lifelong_inputs,
     plot_success_matrices,
     run_lifelong,
 )
+from elegant.evaluation.lifelong_algos import algorithm_names, lifelong_algorithm
 from elegant.reporting.html import write_report
 from elegant.reporting.report import markdown_table, save_figure
 
@@ -191,8 +191,9 @@ def _write_seeds_report(out: Path, summary: dict[str, Any]) -> None:
         + [" / ".join("—" if v is None else f"{v:.3f}" for v in summary["metrics"][key]["values"])]
         for key in METRIC_KEYS
     ]
+    title = lifelong_algorithm(cfg["algorithm"]).title
     lines = [
-        f"# Lifelong learning: {cfg['suite']}, {ALGORITHM_NAMES[cfg['algorithm']]}, {len(summary['seeds'])} seed(s)",
+        f"# Lifelong learning: {cfg['suite']}, {title}, {len(summary['seeds'])} seed(s)",
         "",
         f"- seeds {', '.join(map(str, summary['seeds']))} (runs: {', '.join(summary['runs'])})",
         f"- tasks in learning order: {', '.join(labels)}",
@@ -251,7 +252,7 @@ def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *,
         raise UserInputError(f"lifelong-table: two runs of {repeated[0]}: {paths[0]} and {paths[1]}")
     out = Path(out)
     check_output(str(out), "dir", resume=False, overwrite=overwrite, results=("table.json",))
-    summaries.sort(key=lambda s: LIFELONG_ALGOS.index(s["config"]["algorithm"]))
+    summaries.sort(key=lambda s: algorithm_names().index(s["config"]["algorithm"]))
     table = {
         "config": {k: v for k, v in summaries[0]["config"].items() if k not in ignore},
         "seeds": summaries[0]["seeds"],
@@ -288,7 +289,7 @@ def _table_markdown(table: dict[str, Any]) -> str:
     ]
     rows = [
         [
-            ALGORITHM_NAMES[e["algorithm"]],
+            lifelong_algorithm(e["algorithm"]).title,
             *(_cell(e[source][key]) for source, _ in SOURCES for key in METRIC_KEYS),
             _cell(e["stalled_stages"]),
         ]

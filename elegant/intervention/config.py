@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from collections.abc import Collection, Mapping
 from dataclasses import asdict, dataclass, fields
-from typing import Any, Literal, get_args
+from typing import Any, Literal
 
-from base_suites.runtime.errors import UserInputError, unknown_choice
-from base_suites.runtime.settings import setting
+from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.settings import check_choices, setting
 from elegant.intervention.modes import jiti_mode, mode_names
 from elegant.policies.protocol import DEFAULT_NOISE_SCALE
 
@@ -22,9 +22,6 @@ ThresholdMode = Literal["absolute", "std"]
 TriggerName = Literal["deviation", "drop", "none"]
 Warmup = Literal["base", "steer"]
 
-THRESHOLD_MODES: tuple[str, ...] = get_args(ThresholdMode)
-TRIGGERS: tuple[str, ...] = get_args(TriggerName)
-WARMUPS: tuple[str, ...] = get_args(Warmup)
 MAX_CANDIDATES = 4096  # far beyond any useful count; a typo of more would exhaust memory at the first decision
 
 
@@ -56,7 +53,7 @@ class JITIConfig:
     mode: str = setting(
         "jiti",
         "; ".join(f"{name}: {jiti_mode(name).help}" for name in mode_names()),
-        choices=mode_names(),
+        choices=mode_names,
     )
     window: int = setting(4, "JITI's window: the number of past decisions whose scores set the reference m_t")
     threshold: float = setting(2.0, "tau: how far q_t may stray from m_t before JITI intervenes")
@@ -82,14 +79,8 @@ class JITIConfig:
 
     def validate(self) -> None:
         """Refuse any setting that is unknown, out of range or not a number, with one line naming it."""
+        check_choices(self, "JITI")
         mode = jiti_mode(self.mode)
-        for name, choices in (
-            ("threshold_mode", THRESHOLD_MODES),
-            ("trigger", TRIGGERS),
-            ("warmup", WARMUPS),
-        ):
-            if getattr(self, name) not in choices:
-                raise unknown_choice(f"JITI {name}", getattr(self, name), choices)
         if mode.check is not None:
             mode.check(self)
         if not int(self.window) >= 1:

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from annotations.features import ENCODINGS, Encoding
-from base_suites.runtime.errors import UserInputError, unknown_choice
-from base_suites.runtime.settings import setting
+from annotations.features import Encoding
+from base_suites.runtime.errors import UserInputError
+from base_suites.runtime.settings import check_choices, setting
 
 # Mixture components. LIBERO's GMM baselines use 5; 16 did far better on libero_object/0 (docs/lab/policy.md):
 # a joint chunk needs a component per timing of the gripper's close, or it blends them.
@@ -64,8 +64,7 @@ class BCConfig:
         for name in ("lr", "weight_decay", "grad_clip", "obs_noise"):
             if not getattr(self, name) >= 0:
                 raise UserInputError(f"train_policy: {name} must be >= 0, got {getattr(self, name)!r}")
-        if self.encoding not in ENCODINGS:
-            raise unknown_choice("train_policy encoding", self.encoding, ENCODINGS)
+        check_choices(self, "train_policy")
         for name in ("min_std", "obs_min_std"):
             if not getattr(self, name) > 0:
                 raise UserInputError(f"train_policy: {name} must be > 0, got {getattr(self, name)!r}")

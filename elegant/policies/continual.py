@@ -1,7 +1,7 @@
 """What LIBERO's lifelong baselines change in a BC training run (Liu et al. 2023, `libero/lifelong/algos`).
 
 Each is a mechanism `train_policy` applies when `FineTuning` carries it; the lifelong protocol
-(`elegant.evaluation.lifelong_algos`) decides when each stage gets which:
+(`elegant.evaluation.lifelong_algos`, one class per algorithm) decides when each stage gets which:
 
 - ER (experience replay): `replay_memory` keeps the first `samples` steps of each earlier task's demos
   (LIBERO's fixed-size memory per task, `n_memories`); every batch of the task being learned is joined by
