@@ -108,11 +108,15 @@ def branch_episode(
 
     def draw(t: int, obs: dict, plan: np.ndarray) -> None:
         if t >= first and (t - first) % every == 0:
-            drawn[t] = (np.array(obs["state"], dtype=np.float64), draw_candidates(policy, obs, plan, n_candidates))
+            candidates = draw_candidates(policy, obs, plan, n_candidates)
+            # the policy's own density of each candidate, where it has one (mode "likelihood"'s choice)
+            density = getattr(policy, "log_prob_plans", None)
+            log_prob = None if density is None else np.asarray(density(obs, candidates)).round(4).tolist()
+            drawn[t] = (np.array(obs["state"], dtype=np.float64), candidates, log_prob)
 
     actions, base_elegant = _rollout(env, monitor, policy, chunk, init_index, reset_seed, (), False, draw)
     points = []
-    for t, (state, candidates) in sorted(drawn.items()):
+    for t, (state, candidates, log_prob) in sorted(drawn.items()):
         if t + chunk >= len(actions):  # the episode ended within this decision: nothing left to choose
             continue
         outcomes = [base_elegant] + [
@@ -127,6 +131,7 @@ def branch_episode(
                 "elegant": outcomes,
                 "state": state.tolist(),
                 "candidates": np.asarray(candidates).tolist(),
+                "log_prob": log_prob,
             }
         )
     return {
@@ -173,54 +178,111 @@ def rescore_headroom(result: Mapping[str, Any], critic: Any, jiti: JITIConfig) -
     return {**result, "episodes": episodes, "summary": summarize_headroom(episodes, jiti)}
 
 
+def clustered_rate(groups: Sequence[Sequence[float]]) -> tuple[float | None, float | None]:
+    """The pooled mean of values grouped by start, with its standard error treating the start, not the
+    decision point, as the unit (the cluster-robust SE of a ratio of sums; None with fewer than 2 starts)."""
+    groups = [list(g) for g in groups if len(g)]
+    if not groups:
+        return None, None
+    sums, counts = np.array([sum(g) for g in groups]), np.array([len(g) for g in groups], dtype=float)
+    rate = float(sums.sum() / counts.sum())
+    if len(groups) < 2:
+        return rate, None
+    k = len(groups)
+    return rate, float(np.sqrt(k / (k - 1) * np.sum((sums - rate * counts) ** 2)) / counts.sum())
+
+
+def _controls(point: Mapping[str, Any], jiti: JITIConfig) -> dict[str, int]:
+    """The candidate each critic-free control picks at a point (`elegant.intervention.modes`): consensus
+    where the point stores its candidates, likelihood where it stores the policy's log-densities."""
+    from elegant.intervention.modes.consensus import NearestMean
+    from elegant.intervention.modes.likelihood import MostProbable
+    from elegant.intervention.selectors import Choice
+
+    picks = {}
+    distance = np.asarray(point["distance"])
+    if "candidates" in point:
+        choice = Choice(np.asarray(point["candidates"]), None, distance, np.random.default_rng(0), lambda: None)
+        picks["consensus"] = NearestMean(jiti.trust_radius).select(choice)
+    if point.get("log_prob") is not None:
+        log_prob = np.asarray(point["log_prob"])
+        choice = Choice(
+            np.asarray(point.get("candidates", [])), None, distance, np.random.default_rng(0), lambda: log_prob
+        )
+        picks["likelihood"] = MostProbable(jiti.trust_radius).select(choice)
+    return picks
+
+
 def summarize_headroom(episodes: Sequence[dict[str, Any]], jiti: JITIConfig) -> dict[str, Any]:
     """Rates over decision points (see the module docstring), the critic choosing as `jiti` says (its trust
-    radius and minimum gain); None where no point qualifies."""
+    radius and minimum gain); None where no point qualifies. Beside the critic and a random eligible
+    candidate, the critic-free controls where the points allow them (`_controls`); each `*_hit` (on
+    inelegant base episodes) and `*_harm` (on elegant ones) comes with its `*_se` over starts, and the
+    outcome AUROC is given apart where the base episode was inelegant (`rescue_auroc`: can it find a
+    rescue?) and elegant (`harm_avoidance_auroc`: does it rank the spoiling candidates low?)."""
     from critics.quality import auroc as ranking_auroc  # P(Q of an elegant outcome > Q of another), ties half
 
     def rate(values: list[float]) -> float | None:
         return float(np.mean(values)) if values else None
 
-    matters, reachable, critic_hit, random_hit, critic_harm, random_harm = [], [], [], [], [], []
-    rescuable, auroc = [], []
+    matters, reachable, rescuable, auroc = [], [], [], []
+    by_start: dict[str, list[list[float]]] = {}
+    split_auroc: dict[str, list[float]] = {"rescue_auroc": [], "harm_avoidance_auroc": []}
     for episode in episodes:
         any_reachable = False
+        kind = "harm" if episode["base_elegant"] else "hit"
+        rows: dict[str, list[float]] = {}
         for point in episode["points"]:
             elegant = np.asarray(point["elegant"], dtype=bool)
             q, distance = np.asarray(point["q"]), np.asarray(point["distance"])
             eligible = eligible_candidates(distance, jiti.trust_radius)
-            chosen = choose_candidate(q, distance, jiti.trust_radius, jiti.min_gain)
+            picks = {
+                "critic": choose_candidate(q, distance, jiti.trust_radius, jiti.min_gain),
+                **_controls(point, jiti),
+            }
             matters.append(float(elegant.any() != elegant.all()))
             if elegant[eligible].any() and not elegant[eligible].all():
-                auroc.append(ranking_auroc(q[eligible & elegant], q[eligible & ~elegant]))
-            if episode["base_elegant"]:
-                critic_harm.append(float(not elegant[chosen]))
-                random_harm.append(float(1.0 - elegant[eligible].mean()))
-            else:
+                value = ranking_auroc(q[eligible & elegant], q[eligible & ~elegant])
+                auroc.append(value)
+                split_auroc["harm_avoidance_auroc" if episode["base_elegant"] else "rescue_auroc"].append(value)
+            random_elegant = float(elegant[eligible].mean())
+            outcomes = {name: float(elegant[pick]) for name, pick in picks.items()} | {"random": random_elegant}
+            for name, elegant_outcome in outcomes.items():
+                rows.setdefault(f"{name}_{kind}", []).append(
+                    1.0 - elegant_outcome if kind == "harm" else elegant_outcome
+                )
+            if not episode["base_elegant"]:
                 rescued = bool(elegant[eligible].any())
                 reachable.append(float(rescued))
                 any_reachable |= rescued
-                critic_hit.append(float(elegant[chosen]))
-                random_hit.append(float(elegant[eligible].mean()))
+        for name, values in rows.items():
+            by_start.setdefault(name, []).append(values)
         if not episode["base_elegant"]:
             rescuable.append(float(any_reachable))
-    return {
+    summary: dict[str, Any] = {
         "episodes": len(episodes),
         "base_esr": rate([float(e["base_elegant"]) for e in episodes]),
         "decision_points": sum(len(e["points"]) for e in episodes),
         "choice_matters": rate(matters),
         "headroom": rate(reachable),
-        "critic_hit": rate(critic_hit),
-        "random_hit": rate(random_hit),
-        "critic_harm": rate(critic_harm),
-        "random_harm": rate(random_harm),
-        "rescuable_episodes": rate(rescuable),
-        "outcome_auroc": rate(auroc),
-        # spread of the per-point AUROCs over sqrt(points): with the 20-odd points a task's branches give,
-        # critics 0.1 apart may not differ
-        "outcome_auroc_se": float(np.std(auroc, ddof=1) / np.sqrt(len(auroc))) if len(auroc) > 1 else None,
-        "trust_radius": jiti.trust_radius,
     }
+    for name in ("critic", "random", "likelihood", "consensus"):
+        for kind in ("hit", "harm"):
+            value, se = clustered_rate(by_start.get(f"{name}_{kind}", []))
+            if value is not None or name in ("critic", "random"):
+                summary[f"{name}_{kind}"], summary[f"{name}_{kind}_se"] = value, se
+    summary.update(
+        {
+            "rescuable_episodes": rate(rescuable),
+            "outcome_auroc": rate(auroc),
+            # spread of the per-point AUROCs over sqrt(points): with the 20-odd points a task's branches give,
+            # critics 0.1 apart may not differ
+            "outcome_auroc_se": float(np.std(auroc, ddof=1) / np.sqrt(len(auroc))) if len(auroc) > 1 else None,
+            **{name: rate(values) for name, values in split_auroc.items()},
+            "trust_radius": jiti.trust_radius,
+        }
+    )
+    return summary
 
 
 def intervention_headroom(

@@ -50,6 +50,38 @@ def test_summary_counts_reachable_critic_and_random_choices_within_the_trust_rad
     assert alone["critic_hit"] == 0.5 and alone["outcome_auroc"] == 0.75 and alone["outcome_auroc_se"] is None
 
 
+def test_summary_scores_the_critic_free_controls_and_splits_the_auroc_by_what_the_base_episode_needed():
+    def plans(*first):  # one-step plans whose first action entry is given, the rest zero
+        out = np.zeros((len(first), 1, 7))
+        out[:, 0, 0] = first
+        return out.tolist()
+
+    # inelegant base: candidate 1 (the most probable) and 3 (nearest the mean 0.225 of 0, 0.1, 0.5, 0.3)
+    rescue = _point([0.0, 1.0, 2.0, 0.5], [0.0, 0.1, 0.5, 0.3], [False, True, False, False])
+    rescue.update(candidates=plans(0.0, 0.1, 0.5, 0.3), log_prob=[-3.0, -1.0, -2.0, -5.0])
+    # elegant base: the policy prefers candidate 2, which spoils it; the mean 0.1 is candidate 1's
+    keep = _point([0.0, 2.0, 1.0], [0.0, 0.1, 0.2], [True, True, False])
+    keep.update(candidates=plans(0.0, 0.1, 0.2), log_prob=[-2.0, -3.0, -1.0])
+    s = summarize_headroom(
+        [{"base_elegant": False, "points": [rescue]}, {"base_elegant": True, "points": [keep]}],
+        JITIConfig(trust_radius=None),
+    )
+    assert s["likelihood_hit"] == 1.0 and s["consensus_hit"] == 0.0 and s["critic_hit"] == 0.0
+    assert s["likelihood_harm"] == 1.0 and s["consensus_harm"] == 0.0 and s["critic_harm"] == 0.0
+    # rescue: the elegant candidate 1 scores 1.0, above two of the three others; harm avoidance: the
+    # spoiling candidate 2 scores 1.0, below one of the two elegant ones and above the other
+    assert s["rescue_auroc"] == pytest.approx(2 / 3) and s["harm_avoidance_auroc"] == pytest.approx(0.5)
+    assert s["likelihood_hit_se"] is None  # one start: no spread to measure
+
+
+def test_clustered_rate_treats_the_start_as_the_unit():
+    rate, se = headroom.clustered_rate([[1.0, 1.0, 0.0], [0.0], [1.0, 0.0]])
+    sums, counts = np.array([2.0, 0.0, 1.0]), np.array([3.0, 1.0, 2.0])
+    assert rate == pytest.approx(3 / 6)
+    assert se == pytest.approx(np.sqrt(3 / 2 * np.sum((sums - 0.5 * counts) ** 2)) / 6)
+    assert headroom.clustered_rate([]) == (None, None) and headroom.clustered_rate([[1.0, 0.0]]) == (0.5, None)
+
+
 class Plunge:
     def __call__(self, obs):
         return np.array([0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0])
