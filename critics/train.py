@@ -30,8 +30,8 @@ from torchrl.objectives import SoftUpdate
 from base_suites.runtime.compute import ComputeConfig, device_kind, refuse_other_device, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, library_versions
-from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
+from base_suites.runtime.records import RecordFormat, fill_missing
 from base_suites.runtime.settings import with_overrides
 from base_suites.runtime.training import Progress, Trainer
 from base_suites.stack import cpu_record
@@ -43,7 +43,18 @@ from critics.loss import CalQLLoss
 from critics.networks import TanhGaussianActor, TwinQNetwork
 
 _CPU = torch.device("cpu")
-CHECKPOINT_FORMAT = "libero-elegant/critic-checkpoint/1"
+
+
+def _checkpoint_from_v1(state: dict[str, Any]) -> dict[str, Any]:
+    """A version-1 checkpoint as version 2: its config gains the settings added since, each at the value
+    those runs trained with (per-step actions, Cal-QL's backup, no weight decay or Monte-Carlo term, the
+    squared error, no explored share, no bootstrap, the task one-hot over every task of the files)."""
+    added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse"}
+    added |= {"explored_fraction": 0.0, "bootstrap": None, "encoding": "task-onehot", "tasks": None}
+    return fill_missing(state, {"config": added})
+
+
+CHECKPOINT_RECORD = RecordFormat("libero-elegant/critic-checkpoint", 2, {1: _checkpoint_from_v1})
 CHECKPOINT_FILE = "checkpoint.pt"
 METRICS_FILE = "metrics.csv"
 # Arguments that may change between a run and its resumption (they do not affect the numbers).
@@ -107,7 +118,7 @@ class _Run:
 
     def state(self, step: int, cfg: TrainConfig, fingerprint: str) -> dict[str, Any]:
         return {
-            "format": CHECKPOINT_FORMAT,
+            "format": CHECKPOINT_RECORD.tag,
             "step": step,
             "config": asdict(cfg),
             "fingerprint": fingerprint,
@@ -134,9 +145,7 @@ class _Run:
 def _check_resumable(
     path: str, state: dict[str, Any], cfg: TrainConfig, fingerprint: str, device: torch.device
 ) -> None:
-    changed = changed_fields(
-        state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES, added=added_later("critic checkpoint")
-    )
+    changed = changed_fields(state["config"], asdict(cfg), ignore=_RESUMABLE_CHANGES)
     if changed:
         raise UserInputError(
             f"{path}: cannot resume with different {', '.join(k for k, _, _ in changed)} (checkpoint has "
@@ -219,10 +228,7 @@ class _CriticTraining:
         self.last: dict[str, float] = {}
 
     def resume(self, state: dict[str, Any], path: str) -> int:
-        if state.get("format") != CHECKPOINT_FORMAT:
-            raise UserInputError(
-                f"{path}: not a critic training checkpoint (field 'format' is not {CHECKPOINT_FORMAT!r})"
-            )
+        state = CHECKPOINT_RECORD.upgrade(state, path)
         _check_resumable(path, state, self.cfg, self.fingerprint, self.run.device)
         if int(state["step"]) > self.cfg.steps:
             raise UserInputError(

@@ -8,9 +8,10 @@ rollouts' trust radius and horizon are the evaluation's, and the chain splits th
 rollouts and evaluation. Its defaults are the recommended recipe (the effect benchmark's); named recipes
 are YAML files under `configs/` (`load_recipe`).
 
-chain.json records the settings as `{"format": CHAIN_FORMAT, "settings": ...}`. Chains written before the
-composition (format 1: one flat record of 37 fields) are read through `migrate_flat_record`, the one table
-that says where each old field lives now and what an old chain that lacked it ran with.
+chain.json records the settings as `{"format": CHAIN_RECORD.tag, "settings": ...}`; older formats are
+upgraded one step at a time (`CHAIN_RECORD`). Chains written before the composition (format 1: one flat
+record of 37 fields) are read through `migrate_flat_record`, the table that says where each old field lives
+now and what an old chain that lacked it ran with.
 """
 
 from __future__ import annotations
@@ -25,14 +26,13 @@ from typing import Any
 from base_suites import task_specs
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
-from base_suites.runtime.migrations import added_later
+from base_suites.runtime.records import RecordFormat, fill_missing
 from base_suites.runtime.settings import check_derived, index_list, load_config, nested, setting, with_overrides
 from critics.config import TrainConfig
 from elegant.evaluation.config import EvalConfig, RolloutConfig
 from elegant.intervention.modes import mode_names
 from elegant.policies.bc_config import BCConfig
 
-CHAIN_FORMAT = "libero-elegant-chain/2"
 RECIPES = Path(__file__).resolve().parent.parent / "configs"
 _BRANCH_POINTS = tuple(range(8, 129, 8))
 
@@ -191,6 +191,31 @@ _FLAT_FIELDS = {
     "warmup": "evaluation.jiti.warmup",
     "candidates": "evaluation.jiti.n_candidates",
 }
+# the fields a format-1 record may lack, each with the value such a chain ran with (None: the stage's default
+# of the day, as `_FLAT_NONE_MEANS` says)
+_FLAT_ADDED = {
+    "chunk": 1,
+    "window": None,
+    "policy_successful_only": False,
+    "policy_obs_noise": 0.0,
+    "critic_rollouts": 0,
+    "rollout_explore": 0.3,
+    "critic_backup": "policy",
+    "rollout_explore_at": None,
+    "critic_hidden": [256, 256],
+    "critic_weight_decay": 0.0,
+    "critic_mc_weight": 0.0,
+    "critic_value_loss": "mse",
+    "critic_explored_fraction": 0.0,
+    "trigger": None,
+    "critic_members": 1,
+    "max_overrides": None,
+    "warmup": None,
+    "jiti_gate": False,
+    "candidates": None,
+    "policy_act": "mode",
+    "policy_modes": 5,
+}
 _FLAT_NONE_MEANS = {
     "window": 10,
     "trigger": "deviation",
@@ -204,7 +229,7 @@ _FLAT_NONE_MEANS = {
 
 def migrate_flat_record(record: dict[str, Any]) -> dict[str, Any]:
     """A format-1 (flat) chain record as today's nested settings, equal to what that chain ran with."""
-    flat = {**added_later("flat chain"), **record}
+    flat = {**_FLAT_ADDED, **record}
     if flat["rollout_explore_at"] is not None:  # a rate was recorded but never used beside branch points
         flat["rollout_explore"] = 0.0
     nested_record: dict[str, Any] = {}
@@ -223,6 +248,27 @@ def migrate_flat_record(record: dict[str, Any]) -> dict[str, Any]:
     # the recipe since are all in its record), not the chain's
     base = ChainConfig(policy=BCConfig(), rollout=RolloutConfig(), critic=TrainConfig(), evaluation=EvalConfig())
     return with_overrides(base, nested_record, "chain.json").record()
+
+
+def _chain_from_v1(record: dict[str, Any]) -> dict[str, Any]:
+    """A format-1 chain.json (one flat record, no format field) as format 2: the settings nested."""
+    return {"settings": migrate_flat_record(record)}
+
+
+def _chain_from_v2(record: dict[str, Any]) -> dict[str, Any]:
+    """A format-2 chain.json as format 3: before the rollouts' observation mode and the encodings, chains
+    recorded low-dimensional rollouts and task one-hot models over every task of the files."""
+    settings = {
+        "rollout": {"obs": "lowdim"},
+        "policy": {"encoding": "task-onehot"},
+        "critic": {"encoding": "task-onehot", "tasks": None},
+    }
+    if isinstance(record.get("settings"), dict):
+        record["settings"] = fill_missing(record["settings"], settings)
+    return record
+
+
+CHAIN_RECORD = RecordFormat("libero-elegant-chain", 3, {1: _chain_from_v1, 2: _chain_from_v2})
 
 
 def _chosen(record: dict[str, Any]) -> dict[str, Any]:
@@ -246,18 +292,11 @@ def check_chain_settings(out: str, config: ChainConfig) -> None:
     path = os.path.join(out, "chain.json")
     settings = config.record()
     if os.path.exists(path):
-        stored = read_json_file(path, "chain settings")
-        if isinstance(stored, dict) and stored.get("format") == CHAIN_FORMAT:
-            stored = stored["settings"]
-        elif isinstance(stored, dict) and "format" not in stored:
-            stored = migrate_flat_record(stored)
-        else:
-            found = stored.get("format") if isinstance(stored, dict) else type(stored).__name__
-            raise UserInputError(f"{path}: field 'format' is {found!r}; expected {CHAIN_FORMAT!r}")
-        changed = changed_fields(_chosen(stored), _chosen(settings), added=added_later("chain"))
+        stored = CHAIN_RECORD.upgrade(read_json_file(path, "chain settings"), path)["settings"]
+        changed = changed_fields(_chosen(stored), _chosen(settings))
         if changed:
             raise UserInputError(
                 f"{path}: {out} holds a chain with other settings ({', '.join(k for k, _, _ in changed)}); choose "
                 "another --out"
             )
-    atomic_write(path, json.dumps({"format": CHAIN_FORMAT, "settings": settings}, indent=2))
+    atomic_write(path, json.dumps({"format": CHAIN_RECORD.tag, "settings": settings}, indent=2))

@@ -232,7 +232,7 @@ def test_a_run_from_before_chunks_random_mode_and_init_subsets_still_resumes(run
     shutil.copytree(runs["root"] / "full", out)
     config = json.loads((out / "config.json").read_text())
     assert config["policy_act"] == "mode"
-    assert config["format"] == "libero-elegant-run/1"
+    assert config["format"] == "libero-elegant-run/2"
     assert "random_rate" not in config["jiti"]  # a jiti run records only the settings mode jiti uses
     del config["init_states"], config["jiti"]["chunk"], config["policy_act"]
     del config["format"]  # runs from before the schema had none
@@ -405,6 +405,7 @@ def test_a_base_run_that_recorded_every_jiti_setting_resumes_whatever_the_defaul
     config["jiti"].update(window=10, threshold=1.0, threshold_mode="absolute", trigger="deviation", warmup="base",
                           n_candidates=16, noise_scale=0.1, trust_radius=None, min_gain=0.0, max_overrides=None,
                           random_rate=0.1)  # fmt: skip
+    config["format"] = "libero-elegant-run/1"  # the format of the runs that recorded every setting
     (out / "config.json").write_text(json.dumps(config))
     assert run(out, mode="base", episodes=2, resume=True)["episodes"] == 2
     with pytest.raises(UserInputError, match="field 'mode' is 'base' but this run has 'always'"):

@@ -7,7 +7,12 @@ import pytest
 from base_suites import UserInputError
 from elegant.intervention.gate import read_gate, task_gate, write_gate
 
-AGENT = {"policy": "/runs/policy", "critic": "/runs/critic", "jiti": {"window": 4, "warmup": "steer"}}
+AGENT = {
+    "policy": "/runs/policy",
+    "policy_act": "mode",
+    "critic": "/runs/critic",
+    "jiti": {"window": 4, "warmup": "steer"},
+}
 
 
 def write_run(path, mode, elegant_by_task, init_states=(0, 1, 2), seed=0, interventions=0, **agent):
@@ -16,6 +21,7 @@ def write_run(path, mode, elegant_by_task, init_states=(0, 1, 2), seed=0, interv
     interventions})."""
     path.mkdir()
     config = {
+        "format": "libero-elegant-run/2",
         "suite": "libero_goal",
         "mode": mode,
         "seed": seed,

@@ -181,6 +181,7 @@ def test_a_run_from_before_the_mixture_size_batch_size_and_algorithm_settings_re
     del config["batch_size"]  # ... before the batch size was, when stages trained in batches of 256
     del config["algorithm_settings"]  # ... and before the other algorithms, when SeqL was "sequential"
     config["algorithm"] = "sequential"
+    config["format"] = "libero-elegant-lifelong/1"  # the format of those records
     (out / "config.json").write_text(json.dumps(config))
     with pytest.raises(UserInputError, match="field 'modes' is 5 but this run has 16"):
         run_lifelong(SUITE, TASKS, [demos], out, resume=True, **{**SETTINGS, "batch_size": 256})

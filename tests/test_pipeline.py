@@ -91,7 +91,7 @@ def test_chain_runs_every_step_and_reports_the_eval_numbers(chain):
     jiti = json.load(open(os.path.join(result["runs"]["jiti"]["libero_object"], "config.json")))
     assert jiti["jiti"]["trust_radius"] == TINY.evaluation.jiti.trust_radius
     chain_json = json.load(open(os.path.join(out, "chain.json")))
-    assert chain_json["format"] == "libero-elegant-chain/2" and chain_json["settings"]["critic"]["steps"] == 20
+    assert chain_json["format"] == "libero-elegant-chain/3" and chain_json["settings"]["critic"]["steps"] == 20
 
 
 def test_the_chain_ends_with_a_summary_that_agrees_with_its_report(chain):

@@ -178,7 +178,7 @@ def test_a_flat_chain_record_migrates_to_exactly_the_settings_that_chain_ran_wit
     assert older["policy"]["modes"] == 5  # before the mixture size was a setting, policies had 5 components
     (tmp_path / "chain.json").write_text(json.dumps(FLAT_QUICKSTART))
     check_chain_settings(str(tmp_path), load_recipe("quickstart"))  # accepted, and rewritten in format 2
-    assert json.loads((tmp_path / "chain.json").read_text())["format"] == "libero-elegant-chain/2"
+    assert json.loads((tmp_path / "chain.json").read_text())["format"] == "libero-elegant-chain/3"
     with pytest.raises(UserInputError, match=r"other settings \(critic.steps\)"):
         check_chain_settings(str(tmp_path), with_overrides(load_recipe("quickstart"), {"critic": {"steps": 1}}))
     with pytest.raises(UserInputError, match="field 'chunky' is not a setting of any chain format"):

@@ -12,7 +12,7 @@ import os
 import tempfile
 from typing import Any
 
-from base_suites.runtime.migrations import SAME_AS_NOW
+from base_suites.runtime.records import NOT_RECORDED
 
 
 def atomic_write(path: str | os.PathLike, data: str | bytes) -> None:
@@ -65,19 +65,17 @@ def read_json_file(path: str | os.PathLike, what: str) -> Any:
         raise UserInputError(f"{os.fspath(path)}: corrupt {what} ({exc.__class__.__name__})") from None
 
 
-def changed_fields(
-    old: Any, new: dict, ignore: tuple[str, ...] = (), added: dict | None = None
-) -> list[tuple[str, Any, Any]]:
+def changed_fields(old: Any, new: dict, ignore: tuple[str, ...] = ()) -> list[tuple[str, Any, Any]]:
     """(key, stored value, this run's value) for each setting in which a run directory's stored record
-    `old` (read from JSON; anything but an object counts as empty) and this run's `new` differ, sorted
-    by key (a nested setting as 'outer.inner'); a resume refuses any of them (every resumable command
-    compares settings this one way). Both sides are compared as JSON stores them (a tuple is a list).
-    `added`: as `with_added_settings` fills in."""
+    `old` (read from JSON and upgraded to its current format, `base_suites.runtime.records`; anything but
+    an object counts as empty) and this run's `new` differ, sorted by key (a nested setting as
+    'outer.inner'); a resume refuses any of them (every resumable command compares settings this one way).
+    Both sides are compared as JSON stores them (a tuple is a list); a stored `NOT_RECORDED` equals anything."""
     new = _as_stored(new)
-    old = _as_stored(with_added_settings(old, new, added))
+    old = _as_stored(old) if isinstance(old, dict) else {}
     changed = []
     for k in sorted(set(old) | set(new)):
-        if k in ignore or old.get(k) == new.get(k):
+        if k in ignore or old.get(k) == new.get(k) or old.get(k) == NOT_RECORDED:
             continue
         if isinstance(old.get(k), dict) and isinstance(new.get(k), dict):  # name the nested setting that differs
             changed += [(f"{k}.{inner}", was, now) for inner, was, now in changed_fields(old[k], new[k])]
@@ -89,25 +87,6 @@ def changed_fields(
 def _as_stored(record: Any) -> Any:
     """`record` as JSON would store it (tuples become lists), so that stored and live settings compare."""
     return json.loads(json.dumps(record, default=str))
-
-
-def with_added_settings(old: Any, new: dict, added: dict | None) -> dict:
-    """A stored record `old` (anything but an object counts as empty) with the settings `added` after it
-    was written filled in: each with the value that reproduces what that record's run did, so a record
-    without the key counts as having that value. A dict value names settings added inside a nested record
-    (e.g. {"jiti": {"chunk": 1}}), filled in the same way; `SAME_AS_NOW` takes `new`'s value, a function
-    computes it from `old`. The project's table of them is `base_suites.runtime.migrations`."""
-    old = dict(old) if isinstance(old, dict) else {}
-    for key, value in (added or {}).items():
-        if isinstance(value, dict) and isinstance(old.get(key), dict):
-            now = new.get(key) if isinstance(new.get(key), dict) else {}
-            filled = {k: now.get(k) if v == SAME_AS_NOW else v for k, v in value.items()}
-            old[key] = {**filled, **old[key]}
-        elif callable(value):  # the value depends on what else the old record says
-            old.setdefault(key, value(old))
-        else:
-            old.setdefault(key, new.get(key) if value == SAME_AS_NOW else value)
-    return old
 
 
 def library_versions() -> dict[str, str]:

@@ -65,8 +65,8 @@ from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import atomic_write_json, changed_fields, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
-from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
+from base_suites.runtime.records import RecordFormat, fill_missing
 from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.lifelong_algos import LifelongAlgorithm, lifelong_algorithm
@@ -83,8 +83,23 @@ from elegant.reporting.report import markdown_table, percent, save_figure
 # the metrics a run reports, in LIBERO's order, and the mean success once every task is learned
 METRIC_KEYS = ("fwt", "nbt", "auc", "final_success")
 
-# the schema of OUT/config.json; records from before it had none and count as this one
-LIFELONG_FORMAT = "libero-elegant-lifelong/1"
+
+
+def _lifelong_from_v1(record: dict[str, Any]) -> dict[str, Any]:
+    """A version-1 OUT/config.json as version 2. Version 1 records span the settings added since the
+    first: before the mixture size was a setting, policies had 5 components; before the batch size was
+    one, stages trained in batches of 256; before ER, EWC, PackNet and multitask, SeqL (then recorded as
+    "sequential") had no settings of its own; before pre-training every run started from a fresh network;
+    before the goal-relative encoding, stage policies read the task one-hot."""
+    if record.get("algorithm") == "sequential":
+        record["algorithm"] = "seql"
+    return fill_missing(
+        record, {"modes": 5, "batch_size": 256, "algorithm_settings": {}, "pretrained": None, "encoding": "task-onehot"}
+    )
+
+
+# OUT/config.json's format; records from before it had none and are version 1
+LIFELONG_RECORD = RecordFormat("libero-elegant-lifelong", 2, {1: _lifelong_from_v1})
 
 
 def _task_indices(suite: str, tasks: Sequence[int | str]) -> list[int]:
@@ -102,10 +117,8 @@ def _prepare(out: Path, config: dict[str, Any], resume: bool) -> None:
     """Never mix runs: a new run needs an empty OUT, a resumed one the settings of OUT/config.json."""
     path = out / "config.json"
     if resume and path.exists():
-        recorded = read_json_file(path, "lifelong config")
-        if recorded.get("algorithm") == "sequential":  # SeqL's name before the other algorithms came
-            recorded["algorithm"] = "seql"
-        changed = changed_fields(recorded, config, added=added_later("lifelong run"))
+        recorded = LIFELONG_RECORD.upgrade(read_json_file(path, "lifelong config"), str(path))
+        changed = changed_fields(recorded, config)
         if changed:
             key, before, now = changed[0]
             raise UserInputError(
@@ -133,7 +146,7 @@ def lifelong_inputs(
         raise UserInputError("lifelong: expected a non-empty list of demo files")
     data = select_tasks(load_demos([os.fspath(p) for p in demo_paths]), keys)
     config = {
-        "format": LIFELONG_FORMAT,
+        "format": LIFELONG_RECORD.tag,
         "protocol": "LIBERO lifelong (Liu et al. 2023)",
         "algorithm": cfg.algo,
         "algorithm_settings": cfg.algorithm_settings(),

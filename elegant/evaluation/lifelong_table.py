@@ -35,14 +35,14 @@ import numpy as np
 
 from base_suites.runtime.compute import ComputeConfig, use_compute
 from base_suites.runtime.errors import UserInputError
-from base_suites.runtime.io import atomic_write_json, read_json_file, with_added_settings
+from base_suites.runtime.io import atomic_write_json, read_json_file
 from base_suites.runtime.jobs import Workers, check_workers
 from base_suites.runtime.locks import output_lock
-from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.settings import with_overrides
 from elegant.evaluation.config import LifelongConfig
 from elegant.evaluation.lifelong import (
+    LIFELONG_RECORD,
     METRIC_KEYS,
     lifelong_inputs,
     plot_success_matrices,
@@ -227,8 +227,8 @@ def read_lifelong_result(path: str | os.PathLike) -> dict[str, Any]:
     if "stalled_stages" not in summary:  # an aggregate from before the count: its seed runs hold what it needs
         seeds = [read_json_file(path / f"seed_{s}" / "lifelong.json", "lifelong run") for s in summary["seeds"]]
         summary["stalled_stages"] = _spread([stalled_stages(r) for r in seeds])
-    config = with_added_settings(summary["config"], summary["config"], added_later("lifelong run"))
-    return {"path": str(path), **summary, "config": config}  # a run from before a setting compares as it ran
+    config = LIFELONG_RECORD.upgrade(summary["config"], str(path))  # a run from before a setting reads as it ran
+    return {"path": str(path), **summary, "config": config}
 
 
 def lifelong_table(runs: Sequence[str | os.PathLike], out: str | os.PathLike, *, overwrite: bool = False) -> dict:

@@ -38,24 +38,19 @@ from annotations.format import task_key
 from base_suites import UserInputError, check_same_stack, make_env, stack_record, task_specs
 from base_suites.rollout import ActionLog, run_episode
 from base_suites.runtime.compute import ComputeConfig, device_kind, use_compute
-from base_suites.runtime.io import atomic_write, changed_fields, read_json_file, with_added_settings
+from base_suites.runtime.io import atomic_write, changed_fields, read_json_file
 from base_suites.runtime.jobs import Workers, check_picklable, check_workers, run_jobs
 from base_suites.runtime.locks import output_lock
-from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
 from base_suites.runtime.seeds import derive_seed
 from elegant.evaluation.config import EvalConfig
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import summarize
-from elegant.intervention.config import mode_record
+from elegant.evaluation.run_record import RUN_RECORD
 from elegant.intervention.jiti import JITI
 from elegant.policies.specs import describe_policy, open_policy
 from elegant.reporting.replay import replay_record
 from elegant.reporting.report import write_run_report
-
-# the schema of RUN/config.json; records from before it had none and count as this one
-# (`base_suites.runtime.migrations`)
-RUN_FORMAT = "libero-elegant-run/1"
 
 
 def episode_start(
@@ -127,9 +122,7 @@ def _prepare_run_dir(out: Path, config: dict[str, Any]) -> None:
     if not path.exists() and (out / "episodes.jsonl").exists():
         raise UserInputError(f"{out} holds episodes.jsonl without config.json; choose another directory")
     if path.exists():
-        stored = with_added_settings(read_json_file(path, "run config"), config, added_later("eval run"))
-        if isinstance(stored.get("jiti"), dict):  # runs once recorded every JITI setting, used or not
-            stored["jiti"] = mode_record(stored["jiti"], stored.get("mode"))
+        stored = RUN_RECORD.upgrade(read_json_file(path, "run config"), str(path))
         check_same_stack([(str(path), stored.get("stack")), ("this run", config["stack"])], "a resumed run")
         changed = changed_fields(stored, config, ignore=("episodes", "stack"))
         if changed:  # another mode is named first: it explains the settings that differ with it
@@ -245,7 +238,7 @@ def evaluate(
 
         task_modes = read_gate(cfg.gate, suite, [task_key(suite, i) for i in indices], chosen, described)
     record = {
-        "format": RUN_FORMAT,
+        "format": RUN_RECORD.tag,
         "suite": suite,
         "tasks": indices,
         **described,

@@ -26,13 +26,22 @@ from typing import Any
 
 from base_suites import UserInputError, check_same_stack
 from base_suites.runtime.io import atomic_write, read_json_file
-from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
+from base_suites.runtime.records import RecordFormat, fill_missing
 from base_suites.runtime.settings import setting
 from elegant.evaluation.episode_log import EpisodeLog
+from elegant.evaluation.run_record import read_run_config
 from elegant.intervention.config import mode_record
 
-GATE_FORMAT = "libero-elegant-gate/3"
+
+def _gate_from_v3(record: dict[str, Any]) -> dict[str, Any]:
+    """A version-3 gate as version 4: gates validated before the policy act was a setting ran its default."""
+    if isinstance(record.get("agent"), dict):
+        record["agent"] = fill_missing(record["agent"], {"policy_act": "mode"})
+    return record
+
+
+GATE_RECORD = RecordFormat("libero-elegant-gate", 4, {3: _gate_from_v3})
 GATED_MODES = ("jiti", "always")
 # the fields of a run's config.json that decide what a gated task's JITI or `always` does: a gate's
 # choices hold only for the policy, critic and JITI settings its validation runs used
@@ -56,7 +65,7 @@ INTERVENTION_BUDGET: float = GateConfig.budget
 def _run(path: str | os.PathLike, mode: str) -> tuple[dict[str, Any], dict[tuple[str, int], dict[str, Any]]]:
     """A finished run's config and its episodes by (task, episode), refused unless it ran `mode`."""
     run = Path(path)
-    config = read_json_file(run / "config.json", "run config")
+    config = read_run_config(read_json_file(run / "config.json", "run config"), str(run / "config.json"))
     if config.get("mode") != mode:
         raise UserInputError(
             f"{run / 'config.json'}: field 'mode' is {config.get('mode')!r}; the gate needs a {mode!r} run here"
@@ -91,8 +100,7 @@ def _paired_effects(
 def _agent(config: dict[str, Any], mode: str = "jiti") -> dict[str, Any]:
     """The AGENT_FIELDS of a run's config (or a gate's "agent"), its JITI settings cut to those `mode`
     uses (`mode_record`): what a gate records as the JITI it validated."""
-    defaults = added_later("gate agent")  # what runs and gates from before a field existed did
-    agent = {field: config.get(field, defaults.get(field)) for field in AGENT_FIELDS}
+    agent = {field: config.get(field) for field in AGENT_FIELDS}
     if isinstance(agent["jiti"], dict):
         agent["jiti"] = mode_record(agent["jiti"], mode)
     return agent
@@ -208,7 +216,7 @@ def task_gate(
         )
     limit = _choose_modes(tasks, tuple(runs), budget)
     return {
-        "format": GATE_FORMAT,
+        "format": GATE_RECORD.tag,
         "suite": base_config["suite"],
         "init_states": base_config.get("init_states"),
         "base_run": os.path.abspath(base_run),
@@ -244,11 +252,7 @@ def read_gate(
     Refuses a gate of another suite, one missing any of the tasks, one validated with another policy,
     critic or JITI setting (its choices say nothing of this one's), and one validated on starts the
     evaluation uses: a gate chosen on the evaluated starts would report its own selection as an effect."""
-    gate = read_json_file(path, "gate")
-    if not isinstance(gate, dict) or gate.get("format") != GATE_FORMAT:
-        raise UserInputError(
-            f"{path}: field 'format' is not {GATE_FORMAT!r}; write the gate (again) with `elegant gate`"
-        )
+    gate = GATE_RECORD.upgrade(read_json_file(path, "gate"), str(path))
     if gate.get("suite") != suite:
         raise UserInputError(f"{path}: field 'suite' is {gate.get('suite')!r} but the evaluation is on {suite!r}")
     _refuse_other_agent(path, agent, gate.get("agent") or {}, "this evaluation's", prefix="agent.")

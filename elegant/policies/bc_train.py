@@ -33,8 +33,8 @@ from annotations import TaskFeatureEncoder
 from base_suites.runtime.compute import ComputeConfig, device_kind, refuse_other_device, use_compute
 from base_suites.runtime.errors import UserInputError
 from base_suites.runtime.io import changed_fields
-from base_suites.runtime.migrations import added_later
 from base_suites.runtime.outputs import check_output
+from base_suites.runtime.records import RecordFormat, fill_missing
 from base_suites.runtime.settings import with_overrides
 from base_suites.runtime.training import Progress, Trainer
 from critics.divergence import refuse_divergence
@@ -104,10 +104,21 @@ def demo_batches(
     return [windows.batch(index) for index in order.split(int(batch_size))]
 
 
+def _checkpoint_from_v1(state: dict[str, Any]) -> dict[str, Any]:
+    """A version-1 checkpoint (it named no format) as version 2: its fingerprint gains the settings added
+    since, at what those runs did: every demo (before the success filter), no observation noise, the task
+    one-hot, plain training (before the lifelong mechanisms) and a fresh start (before pre-training)."""
+    added = {"successful_only": False, "config": {"obs_noise": 0.0, "encoding": "task-onehot"}}
+    added |= {"continual": None, "pretrained": None}
+    return fill_missing(state, {"fingerprint": added})
+
+
+CHECKPOINT_RECORD = RecordFormat("libero-elegant-policy-checkpoint", 2, {1: _checkpoint_from_v1})
+
+
 def _check_fingerprint(path: str, state: dict[str, Any], fingerprint: dict[str, Any]) -> None:
     """Refuse a checkpoint of other data, settings or starting point, naming the first field that differs."""
-    # checkpoints from before the success filter trained on every demo
-    changed = changed_fields(state.get("fingerprint"), fingerprint, added=added_later("policy checkpoint"))
+    changed = changed_fields(state.get("fingerprint"), fingerprint)
     if changed:
         key, was, now = changed[0]
         raise UserInputError(f"{path}: cannot resume, field {key!r} was {was!r} and is now {now!r}")
@@ -382,6 +393,7 @@ class _PolicyTraining:
         self.publish_model(directory, self.artifact(self.losses))
 
     def resume(self, state: dict[str, Any], path: str) -> int:
+        state = CHECKPOINT_RECORD.upgrade(state, path)
         _check_fingerprint(path, state, self.fingerprint)
         refuse_other_device(path, state.get("device", "cpu"), self.device)
         self.net.load_state_dict(state["model"])
@@ -427,6 +439,7 @@ class _PolicyTraining:
 
     def checkpoint(self, n: int) -> dict[str, Any]:
         return {
+            "format": CHECKPOINT_RECORD.tag,
             "epoch": n,
             "model": self.net.state_dict(),
             "optimizer": self.optimizer.state_dict(),

@@ -26,8 +26,8 @@ from base_suites.runtime.io import atomic_write
 from base_suites.stack import check_same_stack
 from elegant.evaluation.episode_log import EpisodeLog, run_records
 from elegant.evaluation.metrics import paired_comparison, robustness_metrics, summarize
+from elegant.evaluation.run_record import read_run_config
 from elegant.intervention.modes import jiti_mode, mode_names
-from elegant.policies.protocol import DEFAULT_POLICY_ACT
 from elegant.reporting.html import write_report
 
 
@@ -175,10 +175,10 @@ def _settings_line(cfg: Mapping[str, Any]) -> str:
     jiti, mode = cfg["jiti"], jiti_mode(cfg["mode"])
     if not mode.settings:
         return mode.describe(jiti, "")
-    source = cfg.get("candidate_source", f"{jiti['policy_adapter']}.sample")
+    source = cfg["candidate_source"]
     radius = jiti.get("trust_radius")
     candidates = f"N = {jiti['n_candidates']} candidates ({source}), trust radius {radius if radius else 'none'}"
-    chunk = f", decisions every {jiti['chunk']} steps" if jiti.get("chunk", 1) > 1 else ""
+    chunk = f", decisions every {jiti['chunk']} steps" if jiti["chunk"] > 1 else ""
     return mode.describe(jiti, candidates) + chunk
 
 
@@ -187,7 +187,7 @@ def write_run_report(
 ) -> list[Path]:
     """Write report.md and its PNG plots into `run_dir`; returns the files written."""
     run_dir = Path(run_dir)
-    cfg = summary["config"]
+    cfg = read_run_config(summary["config"], str(run_dir))  # a run from before a setting reads as it ran
     per_task = summary["per_task"]
     tasks = list(per_task)
     files = [
@@ -205,7 +205,7 @@ def write_run_report(
     lines = [
         f"# Evaluation: {cfg['suite']}, mode `{cfg['mode']}`",
         "",
-        f"- policy: `{cfg['policy']}` (policy act: {cfg.get('policy_act', DEFAULT_POLICY_ACT)})",
+        f"- policy: `{cfg['policy']}` (policy act: {cfg['policy_act']})",
         f"- critic: `{cfg['critic']}`",
         f"- tasks: {', '.join(map(str, cfg['tasks']))}; episodes per task: {cfg['episodes']}; seed: {cfg['seed']}",
         f"- perturbation: {cfg['perturbation'] or 'none'}; max steps: {cfg['max_steps'] or 'suite default'}",
@@ -260,6 +260,7 @@ def load_run(run_dir: str | os.PathLike) -> tuple[dict[str, Any], list[dict[str,
         config = json.loads(path.read_text())["config"]
     except (json.JSONDecodeError, KeyError, TypeError):
         raise UserInputError(f"{path}: not the JSON summary of an `elegant eval` run (no field 'config')") from None
+    config = read_run_config(config, str(path))
     records = run_records(EpisodeLog(run_dir / "episodes.jsonl").records, config)
     if not records:
         raise UserInputError(f"{run_dir / 'episodes.jsonl'}: no finished episodes")
@@ -306,7 +307,7 @@ def _robustness(summaries: Sequence[Mapping[str, Any]], dirs: Sequence[Path]) ->
                 cfg["policy"],
                 cfg["critic"],
                 cfg["mode"],
-                cfg.get("policy_act", DEFAULT_POLICY_ACT),
+                cfg["policy_act"],
             ]
         )
         axis = perturbation_axis(cfg["perturbation"])

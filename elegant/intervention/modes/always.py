@@ -8,7 +8,7 @@ from elegant.intervention.triggers import Always
 
 
 def _describe(record, candidates: str) -> str:
-    return f"always: the critic re-ranks every decision; {candidates}; min gain {record.get('min_gain', 0.0)}"
+    return f"always: the critic re-ranks every decision; {candidates}; min gain {record['min_gain']}"
 
 
 register_mode(

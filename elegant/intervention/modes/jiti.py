@@ -28,10 +28,10 @@ def _check(config: Any) -> None:
 
 
 def _describe(record: Mapping[str, Any], candidates: str) -> str:
-    budget = record.get("max_overrides")
-    choice = f"min gain {record.get('min_gain', 0.0)}, override budget {budget if budget is not None else 'none'}"
+    budget = record["max_overrides"]
+    choice = f"min gain {record['min_gain']}, override budget {budget if budget is not None else 'none'}"
     trigger = (
-        f"trigger {record.get('trigger', 'deviation')}, warm-up {record.get('warmup', 'base')}, "
+        f"trigger {record['trigger']}, warm-up {record['warmup']}, "
         f"window {record['window']}, threshold {record['threshold']} ({record['threshold_mode']})"
     )
     return f"JITI: {trigger}; {candidates}; {choice}"
