@@ -51,7 +51,7 @@ def _checkpoint_from_v1(state: dict[str, Any]) -> dict[str, Any]:
     squared error, no explored share, no bootstrap, the task one-hot over every task of the files)."""
     added = {"chunk": 1, "backup": "policy", "weight_decay": 0.0, "mc_weight": 0.0, "value_loss": "mse"}
     added |= {"explored_fraction": 0.0, "bootstrap": None, "encoding": "task-onehot", "tasks": None}
-    return fill_missing(state, {"config": added})
+    return fill_missing(state, {"config": added, "device": "cpu"})  # and trained on the CPU
 
 
 CHECKPOINT_RECORD = RecordFormat("libero-elegant/critic-checkpoint", 2, {1: _checkpoint_from_v1})
@@ -156,7 +156,7 @@ def _check_resumable(
         raise UserInputError(
             f"{path}: the training data changed since this checkpoint was written (fingerprint differs)"
         )
-    refuse_other_device(path, state.get("device", "cpu"), device)
+    refuse_other_device(path, state["device"], device)
 
 
 class _MetricsLog:

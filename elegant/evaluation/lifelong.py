@@ -84,7 +84,6 @@ from elegant.reporting.report import markdown_table, percent, save_figure
 METRIC_KEYS = ("fwt", "nbt", "auc", "final_success")
 
 
-
 def _lifelong_from_v1(record: dict[str, Any]) -> dict[str, Any]:
     """A version-1 OUT/config.json as version 2. Version 1 records span the settings added since the
     first: before the mixture size was a setting, policies had 5 components; before the batch size was

@@ -107,10 +107,11 @@ def demo_batches(
 def _checkpoint_from_v1(state: dict[str, Any]) -> dict[str, Any]:
     """A version-1 checkpoint (it named no format) as version 2: its fingerprint gains the settings added
     since, at what those runs did: every demo (before the success filter), no observation noise, the task
-    one-hot, plain training (before the lifelong mechanisms) and a fresh start (before pre-training)."""
+    one-hot, plain training (before the lifelong mechanisms), a fresh start (before pre-training) and the
+    CPU (before the device was recorded)."""
     added = {"successful_only": False, "config": {"obs_noise": 0.0, "encoding": "task-onehot"}}
     added |= {"continual": None, "pretrained": None}
-    return fill_missing(state, {"fingerprint": added})
+    return fill_missing(state, {"fingerprint": added, "device": "cpu"})  # and trained on the CPU
 
 
 CHECKPOINT_RECORD = RecordFormat("libero-elegant-policy-checkpoint", 2, {1: _checkpoint_from_v1})
@@ -395,7 +396,7 @@ class _PolicyTraining:
     def resume(self, state: dict[str, Any], path: str) -> int:
         state = CHECKPOINT_RECORD.upgrade(state, path)
         _check_fingerprint(path, state, self.fingerprint)
-        refuse_other_device(path, state.get("device", "cpu"), self.device)
+        refuse_other_device(path, state["device"], self.device)
         self.net.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
