@@ -149,16 +149,17 @@ def _demos_args(p: argparse.ArgumentParser) -> None:
 @command("demos", "roll out scripted experts and write a LIBERO-layout HDF5 demos file")(_demos_args)
 def _demos(args: argparse.Namespace) -> dict:
     from annotations.collect import DemoConfig, collect_demos
-    from base_suites.runtime.settings import settings_from_args
+    from base_suites.runtime.settings import config_from_args
 
+    config = config_from_args(args, DemoConfig, "demos")
     return collect_demos(
         args.suite,
         _listed(args.tasks),
         args.out,
+        config,
         resume=args.resume,
         overwrite=args.overwrite,
         workers=_workers(args),
-        **settings_from_args(args, DemoConfig),
     )
 
 
@@ -181,19 +182,20 @@ def _rollouts_args(p: argparse.ArgumentParser) -> None:
     "record a policy's episodes (optionally exploring) as a demo-layout HDF5 for annotation and critic training",
 )(_rollouts_args)
 def _rollouts(args: argparse.Namespace) -> dict:
-    from base_suites.runtime.settings import settings_from_args
+    from base_suites.runtime.settings import config_from_args
     from elegant.evaluation.config import RolloutConfig
     from elegant.evaluation.rollouts import collect_rollouts
 
+    config = config_from_args(args, RolloutConfig, "rollouts")
     return collect_rollouts(
         args.suite,
         _listed(args.tasks),
         args.policy,
         args.out,
+        config,
         resume=args.resume,
         overwrite=args.overwrite,
         workers=_workers(args),
-        **settings_from_args(args, RolloutConfig),
     )
 
 
@@ -277,18 +279,18 @@ def _train_policy_args(p: argparse.ArgumentParser) -> None:
 
 @command("train-policy", "train the BC base policy (GMM head) on demos")(_train_policy_args)
 def _train_policy(args: argparse.Namespace) -> dict:
-    from base_suites.runtime.settings import settings_from_args
+    from base_suites.runtime.settings import config_from_args
     from elegant.policies import train_policy
     from elegant.policies.bc_config import BCConfig
 
     summary = train_policy(
         args.data,
         args.out,
+        config_from_args(args, BCConfig, "train_policy"),
         successful_only=args.successful_only,
         resume=args.resume,
         overwrite=args.overwrite,
         compute=_compute(args),
-        **settings_from_args(args, BCConfig),
     )
     summary.pop("loss_history", None)
     return summary
@@ -308,12 +310,12 @@ def _train_critic_args(p: argparse.ArgumentParser) -> None:
 
 @command("train-critic", "train the Cal-QL elegance critic offline on annotated demos")(_train_critic_args)
 def _train_critic(args: argparse.Namespace) -> dict:
-    from base_suites.runtime.settings import settings_from_args
+    from base_suites.runtime.settings import config_from_args
     from critics import TrainConfig, train_critic
 
-    settings = settings_from_args(args, TrainConfig, exclude=("paths",))
+    config = config_from_args(args, TrainConfig, "train-critic", exclude=("paths",))
     return train_critic(
-        args.data, args.out, resume=args.resume, overwrite=args.overwrite, compute=_compute(args), **settings
+        args.data, args.out, config, resume=args.resume, overwrite=args.overwrite, compute=_compute(args)
     )
 
 
@@ -384,11 +386,11 @@ def _eval(args: argparse.Namespace) -> dict:
         _listed(args.tasks),
         args.policy,
         args.critic,
+        EvalConfig().with_settings(**settings),
         out=args.out,
         resume=args.resume,
         workers=_workers(args),
         compute=_compute(args),
-        **settings,
     )
     return {k: v for k, v in summary.items() if k != "per_task"}
 
@@ -432,11 +434,11 @@ def _robustness(args: argparse.Namespace) -> dict:
         args.critic,
         args.out,
         config,
+        EvalConfig().with_settings(**settings),
         tasks=_listed(args.tasks),
         resume=args.resume,
         workers=_workers(args),
         compute=_compute(args),
-        **settings,
     )
     return {"out": args.out, "total": {name: result[name]["total"] for name in ("success", "elegant")}}
 
@@ -496,11 +498,13 @@ def _gate_args(p: argparse.ArgumentParser) -> None:
     "choose per task base, JITI (or always) by what, on validation starts, made more episodes elegant than it spoiled",
 )(_gate_args)
 def _gate(args: argparse.Namespace) -> dict:
-    from base_suites.runtime.settings import settings_from_args
+    from base_suites.runtime.settings import config_from_args
     from elegant.intervention.gate import GateConfig, write_gate
 
-    settings = {"overwrite": args.overwrite, **settings_from_args(args, GateConfig)}
-    return write_gate(args.base_run, args.jiti_run, args.out, always_run=args.always, **settings)
+    config = config_from_args(args, GateConfig, "gate")
+    return write_gate(
+        args.base_run, args.jiti_run, args.out, always_run=args.always, budget=config.budget, overwrite=args.overwrite
+    )
 
 
 def _lifelong_args(p: argparse.ArgumentParser) -> None:
@@ -539,26 +543,26 @@ def _lifelong_args(p: argparse.ArgumentParser) -> None:
 def _lifelong(args: argparse.Namespace) -> dict:
     from base_suites import task_order
     from base_suites.runtime.errors import UserInputError
-    from base_suites.runtime.settings import settings_from_args
+    from base_suites.runtime.settings import settings_from_args, with_overrides
     from elegant.evaluation.config import LifelongConfig
     from elegant.evaluation.lifelong import run_lifelong
     from elegant.evaluation.lifelong_table import run_lifelong_seeds
 
     settings = settings_from_args(args, LifelongConfig)
+    config = with_overrides(LifelongConfig(), settings, "lifelong")
     tasks = _listed(args.tasks) if args.tasks is not None else task_order(args.suite, args.task_order)
     common = {
         "resume": args.resume,
         "workers": _workers(args),
         "compute": _compute(args),
         "pretrained": args.pretrained,
-        **settings,
     }
     if args.seeds is None:
-        result = run_lifelong(args.suite, tasks, args.data, args.out, **common)
+        result = run_lifelong(args.suite, tasks, args.data, args.out, config, **common)
         return {"out": args.out, "metrics": result["metrics"], "metrics_elegant": result["metrics_elegant"]}
     if "seed" in settings:
         raise UserInputError("lifelong: give --seed for one run or --seeds for several, not both")
-    summary = run_lifelong_seeds(args.suite, tasks, args.data, args.out, args.seeds, **common)
+    summary = run_lifelong_seeds(args.suite, tasks, args.data, args.out, args.seeds, config, **common)
     means = {source: {k: v["mean"] for k, v in summary[source].items()} for source in ("metrics", "metrics_elegant")}
     return {"out": args.out, "seeds": summary["seeds"], **means}
 

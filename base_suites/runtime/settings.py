@@ -275,6 +275,12 @@ def with_overrides(
     return dataclasses.replace(config, **changes)
 
 
+def config_from_args(args: argparse.Namespace, config_cls: type, where: str, exclude: tuple[str, ...] = ()) -> Any:
+    """The config a command line describes: `config_cls()`'s defaults with the options the user set, built
+    (and so validated) before the command does any work, and passed on typed."""
+    return with_overrides(config_cls(), settings_from_args(args, config_cls, exclude), where)
+
+
 def _coerce(annotation: Any, value: Any) -> Any:
     """A sequence in the container its field declares (a list for `list[...]`, a tuple for `tuple[...]`),
     whether it came from YAML, JSON or a caller: configs compare equal to the records they wrote."""
