@@ -268,15 +268,17 @@ def test_a_run_resumes_only_on_the_stack_it_ran_on(runs):
 
 
 def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_path):
-    """Each JITI setting has its own `elegant eval` flag and reaches `evaluate` under its own name; a flag
-    left out is not passed, so the run keeps JITI's default."""
+    """Each JITI setting has its own `elegant eval` flag and reaches `evaluate` in the typed config it builds;
+    a flag left out keeps JITI's default."""
     import elegant.evaluation.runner
     from base_suites.runtime.compute import ComputeConfig
     from elegant.cli import main
     from elegant.intervention.config import JITIConfig
 
     calls = []
-    monkeypatch.setattr(elegant.evaluation.runner, "evaluate", lambda *args, **kwargs: calls.append(kwargs) or {})
+    monkeypatch.setattr(
+        elegant.evaluation.runner, "evaluate", lambda *args, **kwargs: calls.append((args, kwargs)) or {}
+    )
     flags = {
         "window": ("--window", "7", 7),
         "threshold": ("--threshold", "1.5", 1.5),
@@ -292,27 +294,21 @@ def test_eval_cli_hands_every_jiti_setting_to_the_evaluation(monkeypatch, tmp_pa
     }
     assert set(flags) == set(JITIConfig.settings()) - {"mode"}  # mode has its own --mode
     common = ["eval", "--suite", SUITE, "--policy", "p", "--out", str(tmp_path / "run")]
-    assert main(common + [a for flag, text, _ in flags.values() for a in (flag, text)]) == 0
-    assert calls[-1] == {
-        "out": str(tmp_path / "run"),
-        "resume": False,
-        "workers": Workers(1),
-        "compute": ComputeConfig(),
-        **{name: value for name, (_, _, value) in flags.items()},
-    }
-    assert main(common + ["--min-gain", "0.05"]) == 0  # a setting left out is not passed: the config's default holds
-    assert calls[-1] == {
-        "out": str(tmp_path / "run"),
-        "resume": False,
-        "workers": Workers(1),
-        "compute": ComputeConfig(),
-        "min_gain": 0.05,
-    }
+    controls = {"out": str(tmp_path / "run"), "resume": False, "workers": Workers(1), "compute": ComputeConfig()}
+    jiti_flags = {name: flag for name, flag in flags.items() if name != "random_rate"}  # mode jiti's settings
+    assert main(common + [a for flag, text, _ in jiti_flags.values() for a in (flag, text)]) == 0
+    args, kwargs = calls[-1]
+    assert kwargs == controls and args[:4] == (SUITE, None, "p", None)
+    assert {name: getattr(args[4].jiti, name) for name in jiti_flags} == {n: v for n, (_, _, v) in jiti_flags.items()}
+    assert main(common + ["--mode", "random", "--random-rate", "0.3"]) == 0
+    assert calls[-1][0][4].jiti == JITIConfig(mode="random", random_rate=0.3)
+    assert main(common + ["--min-gain", "0.05"]) == 0  # a setting left out keeps the config's default
+    assert calls[-1][0][4].jiti == JITIConfig(min_gain=0.05)
     assert main(common + ["--device", "cpu", "--threads", "2"]) == 0
-    assert calls[-1]["compute"] == ComputeConfig(device="cpu", threads=2)
+    assert calls[-1][1]["compute"] == ComputeConfig(device="cpu", threads=2)
     assert main(common + ["--policy-act", "sample", "--init-states", "0-2,5", "--mode", "base"]) == 0
-    assert calls[-1]["policy_act"] == "sample" and calls[-1]["init_states"] == (0, 1, 2, 5)
-    assert calls[-1]["mode"] == "base"
+    config = calls[-1][0][4]
+    assert config.policy_act == "sample" and config.init_states == (0, 1, 2, 5) and config.mode == "base"
 
 
 def test_a_gate_validated_on_other_starts_runs_each_task_in_the_mode_it_chose(tmp_path):
