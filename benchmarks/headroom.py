@@ -17,10 +17,12 @@ ahead). From each start, as in `elegant eval` with the same seed:
 
 Summarised over decision points: how often the choice matters at all, how often some eligible candidate
 (within the trust radius) gives an elegant success where the base action does not (the headroom), how
-often the critic's choice does (its hit rate), against a uniformly random eligible candidate; on
-base-elegant episodes, how often each choice spoils the episode; and, where the eligible candidates'
-outcomes differ, how well the critic's Q separates those that led to an elegant success from those that
-did not (`outcome_auroc`, 0.5 = chance, with its standard error over the points, `outcome_auroc_se`).
+often the critic's choice does (its hit rate), against a uniformly random eligible candidate and the
+critic-free controls of JITI's modes `likelihood` and `consensus`; on base-elegant episodes, how often each
+choice spoils the episode (each rate with its standard error over starts); and, where the eligible
+candidates' outcomes differ, how well the critic's Q separates those that led to an elegant success from
+those that did not (`outcome_auroc`, 0.5 = chance, with its standard error over the points,
+`outcome_auroc_se`; apart for rescue and harm-avoidance points).
 `rescore_headroom` recomputes all of it for another critic
 from the stored states and candidates.
 """
