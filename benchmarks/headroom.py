@@ -42,7 +42,9 @@ from base_suites.runtime.errors import UserInputError
 from elegant.evaluation.runner import episode_start, open_critic, open_policy
 from elegant.intervention.config import JITIConfig
 from elegant.intervention.jiti import check_critic_chunk, decide, draw_candidates, plan_distance
-from elegant.intervention.selectors import choose_candidate, eligible_candidates
+from elegant.intervention.modes.consensus import NearestMean
+from elegant.intervention.modes.likelihood import MostProbable
+from elegant.intervention.selectors import Choice, choose_candidate, eligible_candidates
 from elegant.policies.adapters import as_policy
 from elegant.policies.protocol import chunk_of
 from elegant.reporting.report import save_figure
@@ -197,10 +199,6 @@ def clustered_rate(groups: Sequence[Sequence[float]]) -> tuple[float | None, flo
 def _controls(point: Mapping[str, Any], jiti: JITIConfig) -> dict[str, int]:
     """The candidate each critic-free control picks at a point (`elegant.intervention.modes`): consensus
     where the point stores its candidates, likelihood where it stores the policy's log-densities."""
-    from elegant.intervention.modes.consensus import NearestMean
-    from elegant.intervention.modes.likelihood import MostProbable
-    from elegant.intervention.selectors import Choice
-
     picks = {}
     distance = np.asarray(point["distance"])
     if "candidates" in point:

@@ -30,7 +30,7 @@ from base_suites.runtime.records import RecordFormat, fill_missing
 from base_suites.runtime.settings import check_derived, index_list, load_config, nested, setting, with_overrides
 from critics.config import TrainConfig
 from elegant.evaluation.config import EvalConfig, RolloutConfig
-from elegant.intervention.modes import mode_names
+from elegant.intervention.modes import jiti_mode, mode_names
 from elegant.policies.bc_config import BCConfig
 
 RECIPES = Path(__file__).resolve().parent.parent / "configs"
@@ -103,11 +103,22 @@ class ChainConfig:
                 raise UserInputError(f"chain {stage} settings: {e}") from None
         if self.critic.explored_fraction > 0 and not self.critic_rollouts:
             raise UserInputError("chain critic.explored_fraction needs explored decisions: give critic_rollouts > 0")
-        if self.jiti_gate and "jiti" in self.modes and not self.critic_rollouts:
+        if self.validated_modes() and not self.critic_rollouts:
             raise UserInputError(
                 "chain jiti_gate validates on the rollouts' starts, apart from the evaluated ones: give "
                 "critic_rollouts > 0"
             )
+
+    def needs_critic(self) -> bool:
+        """Whether any evaluated mode needs a critic (base alone, the policy benchmark, only logs its scores)."""
+        return any(jiti_mode(m).needs_critic for m in self.modes)
+
+    def validated_modes(self) -> tuple[str, ...]:
+        """The modes a gated chain validates on the rollouts' starts: base, jiti and, when evaluated, always
+        (none without the gate)."""
+        if not (self.jiti_gate and "jiti" in self.modes):
+            return ()
+        return ("base", "jiti", *(("always",) if "always" in self.modes else ()))
 
     def policy_config(self) -> BCConfig:
         return replace(self.policy, seed=self.seed)

@@ -86,21 +86,6 @@ class ChainPaths:
         return {m: {s: self.run(m, s) for s in self.suites} for m in self.modes}
 
 
-def needs_critic(cfg: ChainConfig) -> bool:
-    """Whether any evaluated mode needs a critic (base alone, the policy benchmark, only logs its scores)."""
-    from elegant.intervention.modes import jiti_mode
-
-    return any(jiti_mode(m).needs_critic for m in cfg.modes)
-
-
-def validated_modes(cfg: ChainConfig) -> tuple[str, ...]:
-    """The modes a gated chain validates on the rollouts' starts: base, jiti and, when evaluated, always
-    (none without the gate)."""
-    if not (cfg.jiti_gate and "jiti" in cfg.modes):
-        return ()
-    return ("base", "jiti", *(("always",) if "always" in cfg.modes else ()))
-
-
 def chain_stages(
     paths: ChainPaths,
     cfg: ChainConfig,
@@ -160,7 +145,7 @@ def chain_stages(
         )
     )
     critic_data = [paths.annotated(s) for s in cfg.suites]
-    if needs_critic(cfg) and cfg.critic_rollouts:
+    if cfg.needs_critic() and cfg.critic_rollouts:
         recording = cfg.rollout_config(rollout_starts)
         if recording.explore_at is not None:
             how = f"branching at one of steps {list(recording.explore_at)}"
@@ -186,7 +171,7 @@ def chain_stages(
                 ),
             ]
         critic_data += [paths.annotated_rollouts(s) for s in cfg.suites]
-    if needs_critic(cfg):
+    if cfg.needs_critic():
         members = paths.critics
         for k, critic_dir in enumerate(members):
             training = cfg.critic_config(k)
@@ -205,9 +190,9 @@ def chain_stages(
                     ),
                 )
             )
-    critic = ",".join(paths.critics) if needs_critic(cfg) else None
+    critic = ",".join(paths.critics) if cfg.needs_critic() else None
     evaluation = {"resume": True, "progress": progress, "workers": workers, "compute": compute}
-    validated = validated_modes(cfg)
+    validated = cfg.validated_modes()
 
     def validate_and_gate(suite: str) -> str:
         for mode in validated:
